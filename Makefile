@@ -1,0 +1,40 @@
+# User commands. Each does its own set-up on a fresh Debian 12 machine (missing packages, catkin workspace).
+#   make test   build everything and run every test; non-zero exit on any failure
+#   make bench  build in Release and run the benchmarks; writes docs/BENCHMARKS.md and out/bench/*.json
+#   make demo   run the demo (for now: the core engine on the synthetic thigh scene)
+SHELL := /bin/bash
+ROOT := $(CURDIR)
+WS := $(ROOT)/.ws
+# Debian's ROS Python modules live in the system interpreter, not in the pyenv one on PATH.
+export PYENV_VERSION := system
+export PATH := /usr/bin:$(PATH)
+JOBS ?= 2
+CATKIN_MAKE := cd $(WS) && catkin_make -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
+
+.PHONY: test bench demo setup build clean
+
+setup:
+	@$(ROOT)/tools/setup.sh
+
+build: setup
+	@$(CATKIN_MAKE)
+
+test: build
+	@rm -rf $(WS)/build/test_results
+	@$(CATKIN_MAKE) run_tests
+	@catkin_test_results --verbose $(WS)/build/test_results
+	@$(ROOT)/tools/summarize_tests.py $(WS)/build/test_results
+
+bench: build
+	@$(CATKIN_MAKE) benchmarks
+	@mkdir -p $(ROOT)/out/bench
+	@for bench in $(WS)/devel/lib/muscle_deformation/*_bench; do \
+	  echo "== $$(basename $$bench)"; "$$bench" --out $(ROOT)/out/bench || exit 1; done
+	@$(ROOT)/tools/bench_report.py $(ROOT)/out/bench $(ROOT)/docs/BENCHMARKS.md
+
+demo: build
+	@mkdir -p $(ROOT)/out/demo
+	@$(WS)/devel/lib/muscle_deformation/core_demo --out $(ROOT)/out/demo
+
+clean:
+	rm -rf $(WS) $(ROOT)/out
