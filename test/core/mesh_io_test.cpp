@@ -1,0 +1,347 @@
+// Specifications of the mesh and polyline loaders: what they read, and how they refuse what they cannot.
+#include "muscle_deformation/core/mesh_io.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#ifndef MD_TEST_DATA_DIR
+#define MD_TEST_DATA_DIR "test/data"
+#endif
+
+namespace md = muscle_deformation;
+
+namespace {
+
+std::string data(const std::string& name) { return std::string(MD_TEST_DATA_DIR) + "/" + name; }
+
+const char* const kFemur = "/work/shared/data/raw/opensim/Geometry/femur_r.vtp";
+
+// The LoadError message of `load`, or a test failure if it does not throw one.
+template <typename Load>
+std::string loadErrorOf(Load&& load) {
+  try {
+    load();
+  } catch (const md::LoadError& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "threw something other than LoadError: " << e.what();
+    return "";
+  }
+  ADD_FAILURE() << "did not throw";
+  return "";
+}
+
+#define EXPECT_CONTAINS(text, part) \
+  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
+
+// Unit cube [0,1]^3 as written in the cube_* files, whatever the triangulation.
+void expectUnitCube(const md::TriangleMesh& mesh) {
+  EXPECT_EQ(mesh.vertexCount(), 8);
+  EXPECT_EQ(mesh.triangleCount(), 12);
+  EXPECT_TRUE(md::checkSurfaceTopology(mesh).closedManifold()) << md::checkSurfaceTopology(mesh).describe();
+  EXPECT_NEAR(md::enclosedVolume(mesh), 1.0, 1e-12);
+  const md::AlignedBox box = md::boundsOf(mesh.vertices);
+  EXPECT_EQ(box.min, Eigen::Vector3d::Zero());
+  EXPECT_EQ(box.max, Eigen::Vector3d::Ones());
+}
+
+// The three fibres in the fibres_* files, lengths 2, 6 and 0.5.
+void expectThreeFibres(const std::vector<md::Polyline>& fibres) {
+  ASSERT_EQ(fibres.size(), 3u);
+  EXPECT_EQ(fibres[0].cols(), 3);
+  EXPECT_EQ(fibres[1].cols(), 3);
+  EXPECT_EQ(fibres[2].cols(), 2);
+  EXPECT_DOUBLE_EQ(md::polylineLength(fibres[0]), 2.0);
+  EXPECT_DOUBLE_EQ(md::polylineLength(fibres[1]), 6.0);
+  EXPECT_DOUBLE_EQ(md::polylineLength(fibres[2]), 0.5);
+  EXPECT_EQ(fibres[1].col(1), Eigen::Vector3d(1, 3, 4));
+}
+
+std::string tempPath(const std::string& name) {
+  return (std::filesystem::temp_directory_path() / ("md_mesh_io_test_" + name)).string();
+}
+
+}  // namespace
+
+// ----- STL
+
+TEST(LoadStl, AsciiTetrahedronIsWeldedIntoFourVertices) {
+  const md::TriangleMesh mesh = md::loadTriangleMesh(data("tetra_ascii.stl"));
+  EXPECT_EQ(mesh.vertexCount(), 4);
+  EXPECT_EQ(mesh.triangleCount(), 4);
+  EXPECT_TRUE(md::checkSurfaceTopology(mesh).closedManifold());
+  EXPECT_NEAR(md::enclosedVolume(mesh), 1.0 / 6.0, 1e-12);
+}
+
+TEST(LoadStl, BinaryStartingWithSolidIsReadAsBinary) {
+  const md::TriangleMesh mesh = md::loadTriangleMesh(data("tetra_binary.stl"));
+  EXPECT_EQ(mesh.vertexCount(), 4);
+  EXPECT_EQ(mesh.triangleCount(), 4);
+  EXPECT_NEAR(md::enclosedVolume(mesh), 1.0 / 6.0, 1e-7);
+}
+
+TEST(LoadStl, TruncatedBinaryNamesDeclaredAndActualSize) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("truncated_binary.stl")); });
+  EXPECT_CONTAINS(msg, "truncated_binary.stl");
+  EXPECT_CONTAINS(msg, "declares 4 triangles");
+  EXPECT_CONTAINS(msg, "284 bytes");
+  EXPECT_CONTAINS(msg, "254 bytes");
+}
+
+TEST(LoadStl, EmptyFileIsAnError) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("empty.stl")); });
+  EXPECT_CONTAINS(msg, "empty.stl: file is empty");
+}
+
+TEST(LoadStl, SolidWithoutFacetsHasZeroTrianglesError) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("no_facets.stl")); });
+  EXPECT_CONTAINS(msg, "no_facets.stl");
+  EXPECT_CONTAINS(msg, "no triangles");
+}
+
+TEST(LoadStl, NanCoordinateInBinaryIsRejected) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("nan_binary.stl")); });
+  EXPECT_CONTAINS(msg, "nan_binary.stl byte offset");
+  EXPECT_CONTAINS(msg, "triangle 2 has a NaN or infinite vertex coordinate");
+}
+
+TEST(LoadStl, AsciiVertexWithTwoCoordinatesNamesLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_vertex.stl")); });
+  EXPECT_CONTAINS(msg, "bad_vertex.stl line 5: expected 3 coordinates per vertex, found 2");
+}
+
+TEST(SaveStl, BinaryRoundTripKeepsTopologyAndCoordinates) {
+  const md::TriangleMesh original = md::loadTriangleMesh(data("cube.obj"));
+  const std::string path = tempPath("cube.stl");
+  md::saveTriangleMeshStl(path, original);
+  const md::TriangleMesh copy = md::loadTriangleMesh(path);
+  std::remove(path.c_str());
+  expectUnitCube(copy);
+}
+
+// ----- OBJ
+
+TEST(LoadObj, CubeQuadsAreFannedIntoTwelveTriangles) { expectUnitCube(md::loadTriangleMesh(data("cube.obj"))); }
+
+TEST(LoadObj, EveryFaceIndexFormAndNegativeIndicesGiveTheSameCube) {
+  const md::TriangleMesh plain = md::loadTriangleMesh(data("cube.obj"));
+  const md::TriangleMesh forms = md::loadTriangleMesh(data("cube_index_forms.obj"));
+  expectUnitCube(forms);
+  EXPECT_EQ(forms.triangles, plain.triangles);
+}
+
+TEST(LoadObj, IndexOutOfRangeNamesFileAndLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_index.obj")); });
+  EXPECT_CONTAINS(msg, "bad_index.obj line 12: vertex index 9 is out of range: the file defines only 8 vertices");
+}
+
+TEST(LoadObj, NanCoordinateNamesLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("nan_coordinate.obj")); });
+  EXPECT_CONTAINS(msg, "nan_coordinate.obj line 3: vertex coordinate 'nan' is not finite");
+}
+
+TEST(LoadObj, NonNumericCoordinateNamesLineAndToken) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("non_numeric.obj")); });
+  EXPECT_CONTAINS(msg, "non_numeric.obj line 3: vertex coordinate '1.0x' is not a number");
+}
+
+TEST(LoadObj, PolylineFileIsNotASurface) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("fibres.obj")); });
+  EXPECT_CONTAINS(msg, "fibres.obj: contains no triangles, only 3 lines");
+}
+
+// ----- legacy VTK
+
+TEST(LoadVtk, AsciiCubeSkipsVerticesAndAttributeData) { expectUnitCube(md::loadTriangleMesh(data("cube_ascii.vtk"))); }
+
+TEST(LoadVtk, BinaryBigEndianCube) { expectUnitCube(md::loadTriangleMesh(data("cube_binary.vtk"))); }
+
+TEST(LoadVtk, Version51OffsetsAndConnectivityAscii) {
+  expectUnitCube(md::loadTriangleMesh(data("cube_ascii_v51.vtk")));
+}
+
+TEST(LoadVtk, Version51OffsetsAndConnectivityBinary) {
+  expectUnitCube(md::loadTriangleMesh(data("cube_binary_v51.vtk")));
+}
+
+TEST(LoadVtk, BadCoordinateCountNamesFileAndLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_coordinates.vtk")); });
+  EXPECT_CONTAINS(msg, "bad_coordinates.vtk line 7: expected 3 coordinates per point, found 2");
+}
+
+TEST(LoadVtk, NonNumericCoordinateNamesLineAndToken) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("non_numeric.vtk")); });
+  EXPECT_CONTAINS(msg, "non_numeric.vtk line 7: expected a coordinate in POINTS (8 points), found 'zero'");
+}
+
+TEST(LoadVtk, IndexOutOfRangeNamesLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_index.vtk")); });
+  EXPECT_CONTAINS(msg, "bad_index.vtk line 20: POLYGONS refers to point 8 but POINTS declares only 8 points");
+}
+
+TEST(LoadVtk, ListSizeThatDoesNotMatchTheCellsIsAnError) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("wrong_count.vtk")); });
+  EXPECT_CONTAINS(msg, "wrong_count.vtk line");
+  EXPECT_CONTAINS(msg, "POLYGONS cell 5 claims 4 points, which does not fit the declared list size 29");
+}
+
+TEST(LoadVtk, TruncatedBinaryIsAnError) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("truncated_binary.vtk")); });
+  EXPECT_CONTAINS(msg, "truncated_binary.vtk byte offset");
+  EXPECT_CONTAINS(msg, "truncated file?");
+}
+
+TEST(LoadVtk, FibreFileIsNotASurface) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("fibres_ascii.vtk")); });
+  EXPECT_CONTAINS(msg, "read it with loadPolylines");
+}
+
+// ----- VTK XML PolyData
+
+TEST(LoadVtp, AsciiCubeIgnoresPointData) { expectUnitCube(md::loadTriangleMesh(data("cube.vtp"))); }
+
+TEST(LoadVtp, Base64WithUInt32HeaderEncodedSeparately) {
+  expectUnitCube(md::loadTriangleMesh(data("cube_base64.vtp")));
+}
+
+TEST(LoadVtp, Base64WithUInt64HeaderEncodedWithTheData) {
+  expectUnitCube(md::loadTriangleMesh(data("cube_base64_uint64.vtp")));
+}
+
+TEST(LoadVtp, ZlibCompressedMultiBlockArrays) { expectUnitCube(md::loadTriangleMesh(data("cube_zlib.vtp"))); }
+
+TEST(LoadVtp, AppendedRawData) { expectUnitCube(md::loadTriangleMesh(data("cube_appended_raw.vtp"))); }
+
+TEST(LoadVtp, AppendedBase64CompressedData) {
+  expectUnitCube(md::loadTriangleMesh(data("cube_appended_base64_zlib.vtp")));
+}
+
+TEST(LoadVtp, UnsupportedCompressorIsNamed) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube_lz4.vtp")); });
+  EXPECT_CONTAINS(msg, "cube_lz4.vtp line 7:");
+  EXPECT_CONTAINS(msg, "vtkLZ4DataCompressor, which is not supported");
+}
+
+TEST(LoadVtp, PointsArrayWithTooFewValuesNamesLineAndCounts) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_points.vtp")); });
+  EXPECT_CONTAINS(msg, "bad_points.vtp line 7: Points DataArray holds 23 values, expected 24 (3 per point)");
+}
+
+TEST(LoadVtp, UnclosedElementNamesItsLine) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("unclosed.vtp")); });
+  EXPECT_CONTAINS(msg, "unclosed.vtp line");
+  EXPECT_CONTAINS(msg, "does not match <Polys>");
+}
+
+TEST(LoadVtp, OpenSimFemurLoads) {
+  if (!std::filesystem::exists(kFemur)) GTEST_SKIP() << kFemur << " not present";
+  const md::TriangleMesh femur = md::loadTriangleMesh(kFemur);
+  EXPECT_EQ(femur.vertexCount(), 456);
+  EXPECT_EQ(femur.triangleCount(), 908);
+  const md::AlignedBox box = md::boundsOf(femur.vertices);
+  EXPECT_GT((box.max - box.min).maxCoeff(), 0.3);  // a femur is roughly 0.4 m long
+  EXPECT_LT((box.max - box.min).maxCoeff(), 0.6);
+}
+
+// ----- polylines
+
+TEST(LoadPolylines, AsciiVtkLines) { expectThreeFibres(md::loadPolylines(data("fibres_ascii.vtk"))); }
+
+TEST(LoadPolylines, BinaryVtkLines) { expectThreeFibres(md::loadPolylines(data("fibres_binary.vtk"))); }
+
+TEST(LoadPolylines, VtpLines) { expectThreeFibres(md::loadPolylines(data("fibres.vtp"))); }
+
+TEST(LoadPolylines, ObjLineRecords) { expectThreeFibres(md::loadPolylines(data("fibres.obj"))); }
+
+TEST(LoadPolylines, SurfaceFileHasNoLines) {
+  const std::string msg = loadErrorOf([] { md::loadPolylines(data("cube_ascii.vtk")); });
+  EXPECT_CONTAINS(msg, "cube_ascii.vtk: contains no lines");
+}
+
+TEST(LoadPolylines, StlIsRejected) {
+  const std::string msg = loadErrorOf([] { md::loadPolylines(data("tetra_ascii.stl")); });
+  EXPECT_CONTAINS(msg, "STL files hold triangles, not polylines");
+}
+
+TEST(LoadPolylines, ScaleConvertsMillimetresToMetres) {
+  const auto fibres = md::loadPolylines(data("fibres.obj"), 0.001);
+  ASSERT_EQ(fibres.size(), 3u);
+  EXPECT_DOUBLE_EQ(md::polylineLength(fibres[1]), 0.006);
+}
+
+TEST(SavePolylines, VtkRoundTripIsExact) {
+  std::vector<md::Polyline> lines(2);
+  lines[0] = md::Polyline::Random(3, 5);
+  lines[1] = md::Polyline::Random(3, 2);
+  const std::string path = tempPath("fibres.vtk");
+  md::savePolylinesVtk(path, lines);
+  const auto copy = md::loadPolylines(path);
+  std::remove(path.c_str());
+  ASSERT_EQ(copy.size(), 2u);
+  EXPECT_EQ(copy[0], lines[0]);
+  EXPECT_EQ(copy[1], lines[1]);
+}
+
+// ----- closed surfaces and general errors
+
+TEST(LoadClosedSurface, AcceptsClosedCube) { expectUnitCube(md::loadClosedSurface(data("cube.obj"))); }
+
+TEST(LoadClosedSurface, OpenBoxNamesFileAndBoundaryEdges) {
+  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("open_box.obj")); });
+  EXPECT_CONTAINS(msg, "open_box.obj");
+  EXPECT_CONTAINS(msg, "4 boundary edges");
+}
+
+TEST(LoadClosedSurface, NonManifoldEdgeIsRejected) {
+  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("nonmanifold.obj")); });
+  EXPECT_CONTAINS(msg, "nonmanifold.obj");
+  EXPECT_CONTAINS(msg, "1 non-manifold edge");
+}
+
+TEST(LoadClosedSurface, FlippedFaceIsRejected) {
+  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("flipped.obj")); });
+  EXPECT_CONTAINS(msg, "flipped.obj");
+  EXPECT_CONTAINS(msg, "4 inconsistently oriented edges");
+}
+
+TEST(LoadErrors, MissingFileNamesPath) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("no_such_file.stl")); });
+  EXPECT_CONTAINS(msg, "no_such_file.stl: file not found");
+}
+
+TEST(LoadErrors, UnknownExtensionListsSupportedFormats) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube.ply")); });
+  EXPECT_CONTAINS(msg, "cube.ply: unknown file extension '.ply'; supported: .stl, .vtk, .vtp, .obj");
+}
+
+TEST(LoadErrors, DirectoryIsNotAMesh) {
+  const std::string path = tempPath("directory.obj");
+  std::filesystem::create_directories(path);
+  const std::string msg = loadErrorOf([&] { md::loadTriangleMesh(path); });
+  std::filesystem::remove(path);
+  EXPECT_CONTAINS(msg, "directory.obj: is a directory");
+}
+
+TEST(LoadErrors, ExtensionIsCaseInsensitive) {
+  const std::string path = tempPath("CUBE.OBJ");
+  std::filesystem::copy_file(data("cube.obj"), path, std::filesystem::copy_options::overwrite_existing);
+  const md::TriangleMesh mesh = md::loadTriangleMesh(path);
+  std::remove(path.c_str());
+  expectUnitCube(mesh);
+}
+
+TEST(LoadErrors, NonPositiveScaleIsRejected) {
+  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube.obj"), -0.001); });
+  EXPECT_CONTAINS(msg, "scale_to_metres must be a positive finite number");
+}
+
+TEST(Scale, MillimetreCubeBecomesOneMillimetre) {
+  const md::TriangleMesh mesh = md::loadTriangleMesh(data("cube.obj"), 0.001);
+  EXPECT_NEAR(md::boundsOf(mesh.vertices).max.x(), 0.001, 1e-18);
+  EXPECT_NEAR(md::enclosedVolume(mesh), 1e-9, 1e-21);
+}
