@@ -1,0 +1,62 @@
+// The mass-spring system (MSS) of all simulated muscles, stored as structure of arrays.
+//
+// Particles of every muscle live in one set of arrays; muscle m owns the contiguous index range
+// [muscle_begin[m], muscle_begin[m+1]). Springs never join two muscles.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+constexpr int kNoBone = -1;
+
+struct SpringSet {
+  std::vector<std::int32_t> first;   // particle index
+  std::vector<std::int32_t> second;  // particle index, != first
+  Eigen::VectorXd rest_length;       // metres
+  Eigen::VectorXd stiffness;         // N/m  (material constant / rest length)
+
+  std::size_t size() const { return first.size(); }
+};
+
+struct MassSpringSystem {
+  // Rest configuration (scene frame, metres) and per-particle properties.
+  Eigen::Matrix3Xd rest_position = Eigen::Matrix3Xd(3, 0);
+  Eigen::VectorXd mass;                  // kg
+  Eigen::VectorXd radius;                // m, collision sphere radius (0 for particles that never collide)
+  std::vector<std::uint8_t> is_fixed;    // 1: moves rigidly with fixed_bone (attachment), never integrated
+  std::vector<std::uint8_t> is_boundary; // 1: on a fibre nearest the surface; takes part in collision
+  std::vector<std::int32_t> fixed_bone;  // bone index for fixed particles, kNoBone otherwise
+  std::vector<std::int32_t> muscle_of;   // muscle index of each particle
+  std::vector<std::int32_t> fibre_of;    // fibre index within its muscle
+  std::vector<std::int32_t> sample_of;   // position along the fibre, 0 = fibre start
+
+  // Rigid pre-transform weights: each particle follows a blend of up to kBlendBones bones.
+  static constexpr int kBlendBones = 2;
+  Eigen::Matrix<std::int32_t, kBlendBones, Eigen::Dynamic> blend_bone;  // kNoBone for unused slots
+  Eigen::Matrix<double, kBlendBones, Eigen::Dynamic> blend_weight;      // sums to 1 per particle
+
+  std::vector<std::int32_t> muscle_begin;  // size muscles + 1
+  std::vector<std::string> muscle_name;
+
+  SpringSet springs;
+
+  Eigen::Index particleCount() const { return rest_position.cols(); }
+  int muscleCount() const { return static_cast<int>(muscle_name.size()); }
+  std::size_t modelBytes() const;  // heap bytes of the arrays above
+};
+
+// Dynamic state the solver advances. Kept apart from the model so one model serves many solves.
+struct ParticleState {
+  Eigen::Matrix3Xd position = Eigen::Matrix3Xd(3, 0);
+  Eigen::Matrix3Xd previous_position = Eigen::Matrix3Xd(3, 0);  // Verlet: velocity = (x - x_prev) / dt
+};
+
+// The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order).
+std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
+
+}  // namespace muscle_deformation

@@ -1,0 +1,235 @@
+// Building the mass-spring system from muscles and bones, and moving it with the bones.
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <set>
+
+using namespace muscle_deformation;
+
+namespace {
+
+// One spindle muscle between two plate-like bones: fibre starts touch the lower plate, ends the upper one.
+struct SmallScene {
+  std::vector<Muscle> muscles;
+  std::vector<Bone> bones;
+};
+
+SmallScene spindleBetweenPlates() {
+  SmallScene scene;
+  scene.muscles.push_back(makeSpindleMuscle("spindle", {0, 0, 0}, {0, 0, 0.2}, 0.02, 1.0, 4, 30));
+  scene.bones.push_back({0, "lower", makeBoxMesh({-0.05, -0.05, -0.03}, {0.05, 0.05, -0.001})});
+  scene.bones.push_back({1, "upper", makeBoxMesh({-0.05, -0.05, 0.201}, {0.05, 0.05, 0.23})});
+  return scene;
+}
+
+ModelSettings smallSettings() {
+  ModelSettings settings;
+  settings.particles_per_fibre = 10;
+  settings.nearest_neighbours = 8;
+  return settings;
+}
+
+}  // namespace
+
+TEST(ModelBuilder, BuildsParticlesForEveryFibre) {
+  const SmallScene scene = spindleBetweenPlates();
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  EXPECT_EQ(system.particleCount(), 16 * 10);
+  EXPECT_EQ(system.muscle_begin, (std::vector<std::int32_t>{0, 160}));
+  ASSERT_EQ(report.muscles.size(), 1u);
+  EXPECT_EQ(report.muscles[0].particles, 160);
+  EXPECT_EQ(report.muscles[0].springs, static_cast<int>(system.springs.size()));
+  EXPECT_GT(report.muscles[0].volume_m3, 0);
+}
+
+TEST(ModelBuilder, FibreEndsAreFixedToTheNearestBone) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (system.sample_of[i] == 0) {
+      EXPECT_TRUE(system.is_fixed[i]);
+      EXPECT_EQ(system.fixed_bone[i], 0);
+    } else if (system.sample_of[i] == 9) {
+      EXPECT_TRUE(system.is_fixed[i]);
+      EXPECT_EQ(system.fixed_bone[i], 1);
+    }
+  }
+}
+
+TEST(ModelBuilder, ParticlesCloseToABoneAreFixedToIt) {
+  SmallScene scene = spindleBetweenPlates();
+  // A thin rod along the muscle axis passing through it: every particle within 2 mm of it must be attached.
+  scene.bones.push_back({2, "rod", makeCylinderMesh({0.0, 0.0, 0.05}, {0.0, 0.0, 0.15}, 0.001, 12, 4)});
+  ModelSettings settings = smallSettings();
+  settings.attachment_distance_m = 0.004;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings);
+  int attached_to_rod = 0;
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const Eigen::Vector3d p = system.rest_position.col(i);
+    const double radial = std::hypot(p.x(), p.y());
+    // The 12-sided rod's faces are cos(15 deg) of its radius from the axis.
+    const bool near_rod = p.z() > 0.05 && p.z() < 0.15 && radial < 0.001 * std::cos(M_PI / 12) + 0.004 - 1e-9;
+    if (near_rod) {
+      EXPECT_TRUE(system.is_fixed[i]) << i;
+      ++attached_to_rod;
+    }
+    if (system.fixed_bone[i] == 2) {
+      EXPECT_LE(radial - 0.001, 0.004 + 1e-9);
+    }
+  }
+  EXPECT_GT(attached_to_rod, 0);
+}
+
+TEST(ModelBuilder, OuterFibresAreBoundaryAndCentralFibresAreNot) {
+  SmallScene scene;
+  scene.muscles.push_back(makeSpindleMuscle("spindle", {0, 0, 0}, {0, 0, 0.2}, 0.02, 1.0, 6, 30, 48, 60));
+  ModelSettings settings = smallSettings();
+  settings.particles_per_fibre = 20;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, {}, settings);
+  // Fibre f sits at grid (f / 6, f % 6): rows/columns 0 and 5 are the outer ring, 2..3 the centre.
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const int row = system.fibre_of[i] / 6, column = system.fibre_of[i] % 6;
+    const bool outer = row == 0 || row == 5 || column == 0 || column == 5;
+    const bool centre = row >= 2 && row <= 3 && column >= 2 && column <= 3;
+    if (outer) {
+      EXPECT_TRUE(system.is_boundary[i]) << "fibre " << system.fibre_of[i];
+    }
+    if (centre) {
+      EXPECT_FALSE(system.is_boundary[i]) << "fibre " << system.fibre_of[i];
+    }
+  }
+}
+
+TEST(ModelBuilder, StiffnessIsMaterialConstantOverRestLength) {
+  const SmallScene scene = spindleBetweenPlates();
+  ModelSettings settings = smallSettings();
+  settings.spring_material_n = 3.0;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings);
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const auto e = static_cast<Eigen::Index>(s);
+    const double rest = (system.rest_position.col(system.springs.first[s]) - system.rest_position.col(system.springs.second[s])).norm();
+    EXPECT_DOUBLE_EQ(system.springs.rest_length[e], rest);
+    EXPECT_DOUBLE_EQ(system.springs.stiffness[e], 3.0 / rest);
+  }
+}
+
+TEST(ModelBuilder, SpringsNeverJoinTwoMuscles) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles.push_back(makeSpindleMuscle("neighbour", {0.045, 0, 0}, {0.045, 0, 0.2}, 0.02, 1.0, 4, 30));
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  for (std::size_t s = 0; s < system.springs.size(); ++s)
+    EXPECT_EQ(system.muscle_of[system.springs.first[s]], system.muscle_of[system.springs.second[s]]);
+}
+
+TEST(ModelBuilder, EveryLayoutBuildsOnTheSpindle) {
+  const SmallScene scene = spindleBetweenPlates();
+  for (SpringLayout layout : {SpringLayout::nearest_neighbours, SpringLayout::cubic6, SpringLayout::cubic26,
+                              SpringLayout::delaunay}) {
+    ModelSettings settings = smallSettings();
+    settings.spring_layout = layout;
+    const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings);
+    EXPECT_GT(system.springs.size(), 0u) << toString(layout);
+  }
+}
+
+TEST(ModelBuilder, InvalidSettingsAreRejectedWithAMessage) {
+  const SmallScene scene = spindleBetweenPlates();
+  ModelSettings settings = smallSettings();
+  settings.particles_per_fibre = 1;
+  try {
+    buildMassSpringSystem(scene.muscles, scene.bones, settings);
+    FAIL() << "expected ModelError";
+  } catch (const ModelError& error) {
+    EXPECT_NE(std::string(error.what()).find("particles_per_fibre"), std::string::npos);
+  }
+  settings = smallSettings();
+  settings.spring_material_n = -1;
+  EXPECT_THROW(buildMassSpringSystem(scene.muscles, scene.bones, settings), ModelError);
+}
+
+TEST(ModelBuilder, AMuscleWithoutUsableFibresIsNamedInTheError) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles[0].fibres = {Polyline::Zero(3, 3)};
+  try {
+    buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+    FAIL() << "expected ModelError";
+  } catch (const ModelError& error) {
+    EXPECT_NE(std::string(error.what()).find("spindle"), std::string::npos);
+  }
+}
+
+TEST(ModelBuilder, DegenerateFibresAreSkippedWithAWarning) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles[0].fibres.push_back(Polyline::Zero(3, 1));
+  ModelBuildReport report;
+  buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  EXPECT_EQ(report.muscles[0].skipped_fibres, 1);
+  EXPECT_FALSE(report.warnings.empty());
+}
+
+TEST(RigidPretransform, SameTransformForEveryBoneMovesEveryParticleRigidly) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  const Eigen::Isometry3d motion = Eigen::Translation3d(0.1, -0.2, 0.05) *
+                                   Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized());
+  ParticleState state;
+  rigidPretransform(system, {motion, motion}, state);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
+    EXPECT_LT((state.position.col(i) - motion * system.rest_position.col(i)).norm(), 1e-12);
+  EXPECT_EQ(state.previous_position, state.position);
+}
+
+TEST(RigidPretransform, FixedParticlesMoveExactlyWithTheirBone) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  const Eigen::Isometry3d lower(Eigen::Translation3d(0, 0, -0.01));
+  const Eigen::Isometry3d upper(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitX()));
+  ParticleState state;
+  rigidPretransform(system, {lower, upper}, state);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (!system.is_fixed[i]) continue;
+    const Eigen::Isometry3d& bone = system.fixed_bone[i] == 0 ? lower : upper;
+    EXPECT_LT((state.position.col(i) - bone * system.rest_position.col(i)).norm(), 1e-15);
+  }
+}
+
+TEST(RigidPretransform, RigidMotionOfTheWholeSceneLeavesTheSpringsAtRest) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  const Eigen::Isometry3d motion = Eigen::Translation3d(0.3, 0, 0) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitY());
+  ParticleState state;
+  rigidPretransform(system, {motion, motion}, state);
+  SolverSettings settings;
+  settings.stopping_rule = StoppingRule::displacement;
+  settings.displacement_tolerance_m = 1e-12;
+  VerletSolver solver(system, settings);
+  const SolveStats stats = solver.solve(state);
+  EXPECT_LT(stats.spring_deviation_ratio, 1e-12);
+  EXPECT_LE(stats.iterations, 2);
+}
+
+TEST(WarmStart, MovesOnlyTheAttachmentsAndKeepsTheFreeParticles) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  ParticleState state = restState(system);
+  const Eigen::Isometry3d lift(Eigen::Translation3d(0, 0, 0.01));
+  moveAttachments(system, {Eigen::Isometry3d::Identity(), lift}, state);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const Eigen::Vector3d expected =
+        system.is_fixed[i] && system.fixed_bone[i] == 1 ? Eigen::Vector3d(lift * system.rest_position.col(i))
+                                                          : Eigen::Vector3d(system.rest_position.col(i));
+    EXPECT_LT((state.position.col(i) - expected).norm(), 1e-15);
+  }
+}
+
+TEST(RigidPretransform, TooFewBoneTransformsIsAnError) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  ParticleState state;
+  EXPECT_THROW(rigidPretransform(system, {Eigen::Isometry3d::Identity()}, state), std::invalid_argument);
+}
