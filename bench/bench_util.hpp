@@ -1,0 +1,80 @@
+// Small helpers shared by the benchmark programs: command line, medians, JSON output, machine description.
+#pragma once
+
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace bench {
+
+struct Options {
+  std::string out_dir = "out/bench";
+  bool quick = false;  // fewer repetitions, for smoke runs
+};
+
+inline Options parseOptions(int argc, char** argv) {
+  Options options;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--out" && i + 1 < argc) {
+      options.out_dir = argv[++i];
+    } else if (arg == "--quick") {
+      options.quick = true;
+    } else {
+      std::cerr << "usage: " << argv[0] << " [--out DIR] [--quick]\n";
+      std::exit(2);
+    }
+  }
+  return options;
+}
+
+inline double median(std::vector<double> values) {
+  if (values.empty()) return 0;
+  std::sort(values.begin(), values.end());
+  const std::size_t mid = values.size() / 2;
+  return values.size() % 2 ? values[mid] : 0.5 * (values[mid - 1] + values[mid]);
+}
+
+template <class Function>
+double millisecondsOf(Function&& function) {
+  const auto start = std::chrono::steady_clock::now();
+  function();
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+// A JSON list of flat objects, written as one file.
+class JsonRecords {
+ public:
+  void begin() { fields_.clear(); }
+  void add(const std::string& key, double value) {
+    std::ostringstream text;
+    text.precision(6);
+    text << value;
+    fields_.push_back("\"" + key + "\": " + text.str());
+  }
+  void add(const std::string& key, const std::string& value) { fields_.push_back("\"" + key + "\": \"" + value + "\""); }
+  void end() {
+    std::string object = "  {";
+    for (std::size_t i = 0; i < fields_.size(); ++i) object += (i ? ", " : "") + fields_[i];
+    records_.push_back(object + "}");
+  }
+  bool write(const std::string& path) const {
+    std::ofstream file(path);
+    if (!file) return false;
+    file << "[\n";
+    for (std::size_t i = 0; i < records_.size(); ++i) file << records_[i] << (i + 1 < records_.size() ? ",\n" : "\n");
+    file << "]\n";
+    return static_cast<bool>(file);
+  }
+
+ private:
+  std::vector<std::string> fields_;
+  std::vector<std::string> records_;
+};
+
+}  // namespace bench

@@ -1,0 +1,82 @@
+// MSS update time per iteration on the synthetic thigh, sized like the GRAPP paper's Table 1 scene:
+// 13 muscles x 64 fibres x {20, 40, 60, 80} particles per fibre, 18 nearest-neighbour springs, one thread.
+#include "bench_util.hpp"
+
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/synthetic_scene.hpp"
+
+#include <cstdio>
+#include <filesystem>
+
+using namespace muscle_deformation;
+
+int main(int argc, char** argv) {
+  const bench::Options options = bench::parseOptions(argc, argv);
+  std::filesystem::create_directories(options.out_dir);
+  const SyntheticScene scene = makeSyntheticThigh(13, 8);
+  const Pose pose = syntheticThighPose(0.5, 0.8);  // a bent leg: the springs are far from rest
+  const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
+  const double paper_ms[] = {37.32, 79.94, 121.06, 161.40};  // GRAPP Table 1 MSS: 18.66 .. 80.70 s / 500 iterations
+
+  bench::JsonRecords records;
+  const int per_fibre[] = {20, 40, 60, 80};
+  const int repetitions = options.quick ? 3 : 15;
+  const int iterations_per_run = options.quick ? 5 : 40;
+  std::printf("%-8s %9s %9s %11s %14s %14s %10s %8s\n", "per_fib", "particles", "springs", "bytes/part",
+              "fixed dt ms/it", "adapt dt ms/it", "paper ms/it", "speedup");
+  for (int k = 0; k < 4; ++k) {
+    ModelSettings model;
+    model.particles_per_fibre = per_fibre[k];
+    model.nearest_neighbours = 18;
+    ModelBuildReport report;
+    const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model, &report);
+
+    auto timePerIteration = [&](TimeStepRule rule) {
+      SolverSettings settings;
+      settings.dt_rule = rule;
+      VerletSolver solver(system, settings);
+      std::vector<double> runs;
+      for (int r = 0; r < repetitions; ++r) {
+        ParticleState state;
+        rigidPretransform(system, transforms, state);  // same start for every run
+        runs.push_back(bench::millisecondsOf([&] {
+                         for (int i = 0; i < iterations_per_run; ++i) solver.step(state);
+                       }) /
+                       iterations_per_run);
+      }
+      return bench::median(runs);
+    };
+    const double fixed_ms = timePerIteration(TimeStepRule::fixed);
+    // Everything one solve keeps in memory: model arrays, the solver's packed copy, and the state (x, x_prev).
+    const std::size_t state_bytes = 2 * 3 * sizeof(double) * static_cast<std::size_t>(system.particleCount());
+    const std::size_t bytes_per_particle =
+        (system.modelBytes() + VerletSolver(system, SolverSettings{}).solverBytes() + state_bytes) /
+        static_cast<std::size_t>(system.particleCount());
+    const double adaptive_ms = timePerIteration(TimeStepRule::adaptive);
+
+    std::printf("%-8d %9ld %9zu %11zu %14.3f %14.3f %10.1f %7.0fx\n", per_fibre[k],
+                static_cast<long>(system.particleCount()), system.springs.size(), bytes_per_particle, fixed_ms,
+                adaptive_ms, paper_ms[k], paper_ms[k] / fixed_ms);
+    records.begin();
+    records.add("particles_per_fibre", per_fibre[k]);
+    records.add("particles", static_cast<double>(system.particleCount()));
+    records.add("springs", static_cast<double>(system.springs.size()));
+    records.add("mss_ms_per_iteration", fixed_ms);
+    records.add("mss_adaptive_dt_ms_per_iteration", adaptive_ms);
+    records.add("bytes_per_particle", static_cast<double>(bytes_per_particle));
+    records.add("paper_mss_ms_per_iteration", paper_ms[k]);
+    records.add("build_ms", report.build_ms);
+    records.add("repetitions", repetitions);
+    records.add("iterations_per_repetition", iterations_per_run);
+    records.end();
+  }
+  const std::string path = options.out_dir + "/mss.json";
+  if (!records.write(path)) {
+    std::fprintf(stderr, "cannot write %s\n", path.c_str());
+    return 1;
+  }
+  std::printf("wrote %s\n", path.c_str());
+  return 0;
+}
