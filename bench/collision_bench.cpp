@@ -235,7 +235,7 @@ int main(int argc, char** argv) {
       }
     const Fit linear = leastSquares(x, y);
     const Fit power = leastSquares(lx, ly);
-    std::printf("%-9s collision ms = %.4f + %.5f per 1000 boundary particles x 1000 (R^2 %.4f); log-log exponent %.3f\n",
+    std::printf("%-9s collision ms = %.4f + %.5f ms per 1000 boundary particles (R^2 %.4f); log-log exponent %.3f\n",
                 toString(kind), linear.intercept, linear.slope * 1000, linear.r2, power.slope);
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const Row& row = rows[i];
