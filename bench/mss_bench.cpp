@@ -12,6 +12,30 @@
 
 using namespace muscle_deformation;
 
+namespace {
+// Sustained memory bandwidth of this machine, one thread: a triad over arrays much larger than the caches.
+double measureTriadBandwidthGBs(int repetitions) {
+  const std::size_t n = 16u << 20;  // 16 Mi doubles per array, 384 MiB in all
+  std::vector<double> a(n, 1.0), b(n, 2.0), c(n, 0.0);
+  std::vector<double> runs;
+  for (int r = 0; r < repetitions; ++r) {
+    const double ms = bench::millisecondsOf([&] {
+      for (std::size_t i = 0; i < n; ++i) c[i] = a[i] + 0.5 * b[i];
+    });
+    runs.push_back(3.0 * sizeof(double) * n / (ms * 1e-3) / 1e9);
+    std::swap(a, c);
+  }
+  return bench::median(runs);
+}
+
+// Bytes one MSS iteration moves at least once through memory: the packed springs (16 B each) and their runs (8 B
+// per particle), and per particle: zeroing and accumulating forces (24 + 48), reading positions for the springs
+// (24), then integration reading x, x_prev, force, 1/m (80) and writing x, x_prev (48).
+double bytesPerIteration(const MassSpringSystem& system) {
+  return 16.0 * static_cast<double>(system.springs.size()) + (8.0 + 24 + 48 + 24 + 80 + 48) * system.particleCount();
+}
+}  // namespace
+
 int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   std::filesystem::create_directories(options.out_dir);
@@ -20,6 +44,8 @@ int main(int argc, char** argv) {
   const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
   const double paper_ms[] = {37.32, 79.94, 121.06, 161.40};  // GRAPP Table 1 MSS: 18.66 .. 80.70 s / 500 iterations
 
+  const double bandwidth_gbs = measureTriadBandwidthGBs(options.quick ? 3 : 9);
+  std::printf("triad memory bandwidth (one thread): %.1f GB/s\n", bandwidth_gbs);
   bench::JsonRecords records;
   const int per_fibre[] = {20, 40, 60, 80};
   const int repetitions = options.quick ? 3 : 15;
@@ -68,6 +94,9 @@ int main(int argc, char** argv) {
     records.add("bytes_per_particle", static_cast<double>(bytes_per_particle));
     records.add("paper_mss_ms_per_iteration", paper_ms[k]);
     records.add("build_ms", report.build_ms);
+    records.add("bytes_moved_per_iteration", bytesPerIteration(system));
+    records.add("triad_bandwidth_gbs", bandwidth_gbs);
+    records.add("bandwidth_floor_ms", bytesPerIteration(system) / (bandwidth_gbs * 1e9) * 1e3);
     records.add("repetitions", repetitions);
     records.add("iterations_per_repetition", iterations_per_run);
     records.end();

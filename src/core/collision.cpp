@@ -51,6 +51,7 @@ struct CollisionWorld::Impl {
   std::vector<std::vector<std::uint8_t>> sphere_fixed;
   std::vector<SphereSet> muscle_spheres;
   std::vector<AlignedBox> muscle_box;
+  bool rebuild_muscle_hierarchies = false;  // set by a new pose, consumed by the next gather
 
   // Bone objects (broad-phase ids muscle_count + b): fixed spheres, rest frame and current pose.
   std::vector<std::string> bone_names;
@@ -142,8 +143,9 @@ struct CollisionWorld::Impl {
         box.max = box.max.cwiseMax((spheres.centre.col(kk).array() + r).matrix());
       }
       muscle_box[static_cast<std::size_t>(m)] = box;
-      broad->update(m, spheres, false);
+      broad->update(m, spheres, rebuild_muscle_hierarchies);
     }
+    rebuild_muscle_hierarchies = false;
   }
 
   // Muscle pairs whose sphere bounds overlap; the others cannot touch this iteration.
@@ -235,6 +237,9 @@ void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per
   if (static_cast<int>(per_bone_index.size()) != w.bone_count)
     throw std::invalid_argument("CollisionWorld::setBoneTransforms: " + std::to_string(per_bone_index.size()) +
                                 " transforms for " + std::to_string(w.bone_count) + " bones");
+  // A new pose starts a new solve: muscle hierarchies are rebuilt once from the pre-transformed particles and only
+  // refitted during the solve's iterations, as in the seeds (a refitted tree grows loose as the shape drifts).
+  w.rebuild_muscle_hierarchies = true;
   for (int b = 0; b < w.bone_count; ++b) {
     const std::size_t ub = static_cast<std::size_t>(b);
     const Eigen::Isometry3d& t = per_bone_index[ub];

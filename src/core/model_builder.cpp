@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/model_builder.hpp"
 
+#include "muscle_deformation/core/collision.hpp"
 #include "muscle_deformation/core/fibre_sampling.hpp"
 #include "muscle_deformation/core/point_index.hpp"
 
@@ -52,26 +53,37 @@ ParticlePairs layoutPairs(const ModelSettings& settings, const FibreSamples& sam
   return {};
 }
 
-// Fibres nearest the surface: a fibre is a boundary fibre when enough of its particles are the closest particle of
-// some surface vertex (interior fibres only win vertices near the muscle ends, where all fibres converge).
+// Fibres nearest the surface. Every fibre is probed at the same number of points along its length, whatever the
+// particles per fibre; each surface vertex votes for its closest probe, and a fibre whose probes won enough votes is a
+// boundary fibre. Interior fibres only win votes near the muscle ends, where all fibres converge. Probing the fibres
+// rather than the particles keeps the answer independent of the sampling resolution.
 std::vector<std::uint8_t> markBoundary(const Muscle& muscle, const FibreSamples& samples, double fraction) {
-  const Eigen::Index count = samples.position.cols();
-  std::vector<std::uint8_t> nearest_to_vertex(count, 0);
-  const PointIndex particles(samples.position);
-  for (Eigen::Index v = 0; v < muscle.surface.vertices.cols(); ++v)
-    nearest_to_vertex[particles.nearest(muscle.surface.vertices.col(v)).first] = 1;
+  constexpr int kProbesPerFibre = 16;
+  std::vector<std::int32_t> fibre_ids(samples.fibre_of.begin(), samples.fibre_of.end());
+  std::sort(fibre_ids.begin(), fibre_ids.end());
+  fibre_ids.erase(std::unique(fibre_ids.begin(), fibre_ids.end()), fibre_ids.end());
 
-  std::map<std::int32_t, std::pair<int, int>> hits_of_fibre;  // fibre -> (hits, particles)
-  for (Eigen::Index i = 0; i < count; ++i) {
-    auto& entry = hits_of_fibre[samples.fibre_of[i]];
-    entry.first += nearest_to_vertex[i];
-    entry.second += 1;
+  Eigen::Matrix3Xd probes(3, static_cast<Eigen::Index>(fibre_ids.size()) * kProbesPerFibre);
+  for (std::size_t f = 0; f < fibre_ids.size(); ++f) {
+    const Polyline& fibre = muscle.fibres[fibre_ids[f]];
+    const double length = polylineLength(fibre);
+    for (int k = 0; k < kProbesPerFibre; ++k)
+      probes.col(static_cast<Eigen::Index>(f) * kProbesPerFibre + k) =
+          pointAtArcLength(fibre, length * (k + 0.5) / kProbesPerFibre);
   }
-  std::vector<std::uint8_t> boundary(count, 0);
-  for (Eigen::Index i = 0; i < count; ++i) {
-    const auto& [hits, total] = hits_of_fibre[samples.fibre_of[i]];
-    boundary[i] = hits >= fraction * total ? 1 : 0;
+  std::vector<std::uint8_t> probe_won(static_cast<std::size_t>(probes.cols()), 0);
+  const PointIndex probe_index(probes);
+  for (Eigen::Index v = 0; v < muscle.surface.vertices.cols(); ++v)
+    probe_won[probe_index.nearest(muscle.surface.vertices.col(v)).first] = 1;
+
+  std::map<std::int32_t, bool> is_boundary_fibre;
+  for (std::size_t f = 0; f < fibre_ids.size(); ++f) {
+    int won = 0;
+    for (int k = 0; k < kProbesPerFibre; ++k) won += probe_won[f * kProbesPerFibre + k];
+    is_boundary_fibre[fibre_ids[f]] = won >= fraction * kProbesPerFibre;
   }
+  std::vector<std::uint8_t> boundary(samples.fibre_of.size(), 0);
+  for (std::size_t i = 0; i < boundary.size(); ++i) boundary[i] = is_boundary_fibre[samples.fibre_of[i]] ? 1 : 0;
   return boundary;
 }
 
@@ -236,16 +248,6 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
       out.warnings.push_back("muscle '" + muscle.name + "': " + std::to_string(summary.dropped_springs) +
                              " springs between coincident particles dropped");
 
-    // Provisional collision radius until the collision stage assigns the seeds' heuristic: half the distance to the
-    // nearest other particle, so spheres of one muscle never overlap.
-    const PointIndex local_index(samples.position);
-    std::vector<std::pair<std::int32_t, double>> nearest_two;
-    for (Eigen::Index local = 0; local < count; ++local) {
-      if (!boundary[local]) continue;
-      local_index.nearest(samples.position.col(local), 2, nearest_two);
-      system.radius[offset + local] = nearest_two.size() == 2 ? 0.5 * nearest_two[1].second : 0.0;
-    }
-
     system.muscle_name.push_back(muscle.name);
     offset += count;
     system.muscle_begin.push_back(static_cast<std::int32_t>(offset));
@@ -263,6 +265,9 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.rest_length[static_cast<Eigen::Index>(s)] = spring_rest[s];
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
+  // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
+  const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
+  for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;
   out.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   return system;
 }

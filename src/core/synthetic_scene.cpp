@@ -3,6 +3,7 @@
 #include <cmath>
 #include <map>
 #include <stdexcept>
+#include <tuple>
 
 namespace muscle_deformation {
 
@@ -100,15 +101,48 @@ TriangleMesh makeSphereMesh(const Eigen::Vector3d& centre, double radius, int su
   return mesh;
 }
 
-TriangleMesh makeBoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+TriangleMesh makeBoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double max_edge_m) {
+  // Each face is a grid of quads split in two; vertices on shared box edges are welded by their grid coordinates.
+  Eigen::Vector3i cells;
+  for (int axis = 0; axis < 3; ++axis)
+    cells[axis] = max_edge_m > 0 ? std::max(1, static_cast<int>(std::ceil((hi[axis] - lo[axis]) / max_edge_m))) : 1;
+  std::map<std::tuple<int, int, int>, int> vertex_of;
+  std::vector<Eigen::Vector3d> vertices;
+  auto vertex = [&](const Eigen::Vector3i& grid) {
+    const auto key = std::make_tuple(grid.x(), grid.y(), grid.z());
+    const auto it = vertex_of.find(key);
+    if (it != vertex_of.end()) return it->second;
+    vertices.push_back(lo + (hi - lo).cwiseProduct(grid.cast<double>().cwiseQuotient(cells.cast<double>())));
+    return vertex_of[key] = static_cast<int>(vertices.size()) - 1;
+  };
+  std::vector<Eigen::Vector3i> triangles;
+  for (int axis = 0; axis < 3; ++axis)
+    for (int side = 0; side < 2; ++side) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;  // (u, v, axis) is right-handed
+      for (int i = 0; i < cells[u]; ++i)
+        for (int j = 0; j < cells[v]; ++j) {
+          Eigen::Vector3i corner[4];
+          for (int c = 0; c < 4; ++c) {
+            corner[c][axis] = side * cells[axis];
+            corner[c][u] = i + (c == 1 || c == 2);
+            corner[c][v] = j + (c >= 2);
+          }
+          const int a = vertex(corner[0]), b = vertex(corner[1]), c = vertex(corner[2]), d = vertex(corner[3]);
+          // u x v points along +axis: counter-clockwise (a, b, c, d) faces +axis, so flip on the low side.
+          if (side == 1) {
+            triangles.emplace_back(a, b, c);
+            triangles.emplace_back(a, c, d);
+          } else {
+            triangles.emplace_back(a, c, b);
+            triangles.emplace_back(a, d, c);
+          }
+        }
+    }
   TriangleMesh mesh;
-  mesh.vertices.resize(3, 8);
-  for (int i = 0; i < 8; ++i)
-    mesh.vertices.col(i) = Eigen::Vector3d((i & 1) ? hi.x() : lo.x(), (i & 2) ? hi.y() : lo.y(), (i & 4) ? hi.z() : lo.z());
-  mesh.triangles.resize(3, 12);
-  mesh.triangles << 0, 0, 4, 4, 0, 0, 2, 2, 0, 0, 1, 1,  //
-      2, 3, 5, 7, 1, 5, 3, 7, 4, 6, 3, 7,                //
-      3, 1, 7, 6, 5, 4, 7, 6, 6, 2, 7, 5;
+  mesh.vertices.resize(3, static_cast<Eigen::Index>(vertices.size()));
+  for (std::size_t i = 0; i < vertices.size(); ++i) mesh.vertices.col(static_cast<Eigen::Index>(i)) = vertices[i];
+  mesh.triangles.resize(3, static_cast<Eigen::Index>(triangles.size()));
+  for (std::size_t t = 0; t < triangles.size(); ++t) mesh.triangles.col(static_cast<Eigen::Index>(t)) = triangles[t];
   return mesh;
 }
 
@@ -142,10 +176,16 @@ Muscle makeSpindleMuscle(const std::string& name, const Eigen::Vector3d& bottom,
 SyntheticScene makeSyntheticThigh(int muscle_count, int fibres_per_side) {
   SyntheticScene scene;
   const double femur_radius = 0.014;
-  scene.bones.push_back({0, "pelvis", makeBoxMesh({-0.08, -0.12, 0.02}, {0.08, 0.12, 0.08})});
-  scene.bones.push_back({1, "femur", makeCylinderMesh(kKneeCentre, kHipCentre, femur_radius, 24, 24)});
+  scene.bones.push_back({0, "pelvis", makeBoxMesh({-0.08, -0.12, 0.02}, {0.08, 0.12, 0.08}, 0.006)});
+  // Rings as far apart as the segments around, so triangles are near equilateral: the one-ring bone-sphere heuristic
+  // sizes spheres by the longest edge and would otherwise make spheres far larger than the bone.
+  const int segments = 24;
+  const double edge = 2 * kPi * femur_radius / segments;
+  const auto rings = [edge](double length) { return static_cast<int>(std::ceil(length / edge)); };
+  scene.bones.push_back({1, "femur", makeCylinderMesh(kKneeCentre, kHipCentre, femur_radius, segments, rings(0.42))});
   scene.bones.push_back({2, "tibia", makeCylinderMesh(kKneeCentre + Eigen::Vector3d(0, 0, -0.40),
-                                                      kKneeCentre + Eigen::Vector3d(0, 0, -0.02), femur_radius, 24, 24)});
+                                                      kKneeCentre + Eigen::Vector3d(0, 0, -0.02), femur_radius, segments,
+                                                      rings(0.38))});
   // Muscles on two rings around the femur, running from just below the pelvis to just above the tibia's top, so
   // that their fibre ends attach to pelvis and tibia and the femur pushes against them.
   const double peak_radius = 0.011;

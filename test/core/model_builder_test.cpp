@@ -105,6 +105,33 @@ TEST(ModelBuilder, OuterFibresAreBoundaryAndCentralFibresAreNot) {
   }
 }
 
+TEST(ModelBuilder, BoundaryFibresDoNotDependOnParticlesPerFibre) {
+  SmallScene scene;
+  scene.muscles.push_back(makeSpindleMuscle("spindle", {0, 0, 0}, {0, 0, 0.2}, 0.02, 1.0, 6, 30, 48, 60));
+  std::set<std::int32_t> reference;
+  for (int per_fibre : {10, 20, 40, 80}) {
+    ModelSettings settings = smallSettings();
+    settings.particles_per_fibre = per_fibre;
+    const MassSpringSystem system = buildMassSpringSystem(scene.muscles, {}, settings);
+    std::set<std::int32_t> boundary_fibres;
+    for (Eigen::Index i = 0; i < system.particleCount(); ++i)
+      if (system.is_boundary[i]) boundary_fibres.insert(system.fibre_of[i]);
+    if (reference.empty()) reference = boundary_fibres;
+    EXPECT_EQ(boundary_fibres, reference) << per_fibre << " particles per fibre";
+  }
+  EXPECT_EQ(reference.size(), 20u);  // the outer ring of the 6 x 6 grid
+}
+
+TEST(SyntheticScene, SubdividedBoxIsClosedWithShortEdges) {
+  const TriangleMesh box = makeBoxMesh({0, 0, 0}, {0.1, 0.2, 0.05}, 0.01);
+  EXPECT_TRUE(checkSurfaceTopology(box).closedManifold()) << checkSurfaceTopology(box).describe();
+  EXPECT_NEAR(enclosedVolume(box), 0.1 * 0.2 * 0.05, 1e-15);
+  for (Eigen::Index t = 0; t < box.triangleCount(); ++t)
+    for (int c = 0; c < 3; ++c)
+      EXPECT_LE((box.vertices.col(box.triangles(c, t)) - box.vertices.col(box.triangles((c + 1) % 3, t))).norm(),
+                0.01 * std::sqrt(2.0) + 1e-12);
+}
+
 TEST(ModelBuilder, StiffnessIsMaterialConstantOverRestLength) {
   const SmallScene scene = spindleBetweenPlates();
   ModelSettings settings = smallSettings();

@@ -21,8 +21,8 @@ struct ModelSettings {
   bool fix_fibre_ends = true;              // first and last particle of every fibre fixed to the nearest bone
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
-  double boundary_fibre_fraction = 0.3;    // share of a fibre's particles that must be nearest to some surface
-                                           // vertex for the fibre to count as a boundary fibre
+  double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
+                                           // closest probe of some surface vertex for a boundary fibre
 };
 
 // Invalid settings or input (e.g. a muscle with no usable fibre); the message names the muscle and the problem.
@@ -40,6 +40,7 @@ struct MuscleBuildSummary {
   int fixed_particles = 0;
   int springs = 0;
   int dropped_springs = 0;  // joined coincident particles (zero rest length)
+  double mean_radius_m = 0; // mean collision sphere radius of the boundary particles
   double volume_m3 = 0;
 };
 
@@ -50,6 +51,7 @@ struct ModelBuildReport {
 };
 
 // Throws ModelError on invalid settings or unusable input. Bones may be empty (fibre ends are then fixed in space).
+// Boundary particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report = nullptr);
 

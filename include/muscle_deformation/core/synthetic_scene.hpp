@@ -12,7 +12,8 @@ namespace muscle_deformation {
 TriangleMesh makeCylinderMesh(const Eigen::Vector3d& bottom_centre, const Eigen::Vector3d& top_centre, double radius,
                               int segments = 24, int rings = 8);
 TriangleMesh makeSphereMesh(const Eigen::Vector3d& centre, double radius, int subdivisions = 3);  // icosphere
-TriangleMesh makeBoxMesh(const Eigen::Vector3d& min_corner, const Eigen::Vector3d& max_corner);
+// Faces split into square-ish cells no longer than max_edge_m (0: two triangles per face).
+TriangleMesh makeBoxMesh(const Eigen::Vector3d& min_corner, const Eigen::Vector3d& max_corner, double max_edge_m = 0);
 
 // A spindle muscle along the segment bottom..top: radius profile peak_radius * (0.35 + 0.65 sin(pi t)), elliptic
 // cross-section (aspect = minor/major), and fibres_per_side^2 straight-in-cross-section fibres on a grid that

@@ -1,0 +1,68 @@
+// One way through the core: muscles and bones in, a pose in, deformed particles and statistics out.
+//
+//   MuscleSimulation simulation(muscles, bones, settings);   // builds the MSS, radii, bone spheres
+//   FrameStats stats = simulation.solve(pose, StartMode::warm);
+//   simulation.state().position  /  fibrePolylines(simulation.system(), simulation.state().position)
+#pragma once
+
+#include "muscle_deformation/core/collision.hpp"
+#include "muscle_deformation/core/mass_spring_system.hpp"
+#include "muscle_deformation/core/model.hpp"
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solver.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace muscle_deformation {
+
+struct SimulationSettings {
+  ModelSettings model;
+  SolverSettings solver;
+  CollisionSettings collision;
+  bool collisions = true;  // false: the MSS alone (for comparisons)
+};
+
+enum class StartMode {
+  cold,  // from the rest shape moved by the rigid pre-transform (the seeds: every pose independent)
+  warm,  // from the previous result moved with the bones' motion since the previous pose (cold if there is none)
+};
+
+struct FrameStats {
+  SolveStats solve;          // iterations, per-phase times, spring deviation, strain
+  CollisionStats collision;  // contacts and remaining penetration after the last iteration
+  bool warm_started = false;
+  bool finite = true;        // every particle position is finite
+};
+
+class MuscleSimulation {
+ public:
+  // Throws ModelError (invalid settings or input) or std::invalid_argument (invalid solver/collision settings).
+  MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings);
+
+  FrameStats solve(const Pose& pose, StartMode start);
+  void reset();  // forget the previous result: the next solve starts cold
+
+  const MassSpringSystem& system() const { return system_; }
+  const ParticleState& state() const { return state_; }
+  const std::vector<Muscle>& muscles() const { return muscles_; }
+  const std::vector<Bone>& bones() const { return bones_; }
+  const ModelBuildReport& buildReport() const { return build_report_; }
+  const SimulationSettings& settings() const { return settings_; }
+  const CollisionWorld* collisionWorld() const { return collision_.get(); }
+
+ private:
+  std::vector<Muscle> muscles_;
+  std::vector<Bone> bones_;
+  SimulationSettings settings_;
+  ModelBuildReport build_report_;
+  MassSpringSystem system_;
+  std::unique_ptr<VerletSolver> solver_;
+  std::unique_ptr<CollisionWorld> collision_;
+  ParticleState state_;
+  BoneTransforms previous_transforms_;
+  bool has_previous_ = false;
+};
+
+}  // namespace muscle_deformation

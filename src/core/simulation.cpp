@@ -1,0 +1,45 @@
+#include "muscle_deformation/core/simulation.hpp"
+
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings)
+    : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
+  for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
+  if (const std::string problem = validate(settings_.collision); !problem.empty())
+    throw std::invalid_argument("collision settings: " + problem);
+  system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
+  solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
+  if (settings_.collisions) collision_ = std::make_unique<CollisionWorld>(system_, bones_, settings_.collision);
+  state_ = restState(system_);
+}
+
+void MuscleSimulation::reset() { has_previous_ = false; }
+
+FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
+  const BoneTransforms transforms = boneTransformsOf(bones_, pose);
+  for (const Eigen::Isometry3d& transform : transforms)
+    if (!transform.matrix().allFinite()) throw std::invalid_argument("pose has a non-finite bone transform");
+  FrameStats stats;
+  stats.warm_started = start == StartMode::warm && has_previous_;
+  if (stats.warm_started)
+    warmStart(system_, previous_transforms_, transforms, state_);
+  else
+    rigidPretransform(system_, transforms, state_);
+
+  if (collision_) {
+    collision_->setBoneTransforms(transforms);
+    collision_->resetTiming();
+    stats.solve = solver_->solve(state_, [this](ParticleState& state) { return collision_->resolve(state); });
+    stats.collision = collision_->measure(state_);
+  } else {
+    stats.solve = solver_->solve(state_);
+  }
+  stats.finite = state_.position.allFinite();
+  previous_transforms_ = transforms;
+  has_previous_ = stats.finite;  // never warm-start from a broken state
+  return stats;
+}
+
+}  // namespace muscle_deformation
