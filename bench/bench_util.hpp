@@ -2,6 +2,7 @@
 #pragma once
 
 #include <algorithm>
+#include <ctime>
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
@@ -38,6 +39,21 @@ inline double median(std::vector<double> values) {
   std::sort(values.begin(), values.end());
   const std::size_t mid = values.size() / 2;
   return values.size() % 2 ? values[mid] : 0.5 * (values[mid - 1] + values[mid]);
+}
+
+// CPU time of the calling thread: on a shared machine it leaves out the time the thread waited for a core, which
+// wall time counts. Benchmarks report both.
+inline double threadCpuMilliseconds() {
+  timespec now{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &now);
+  return 1e3 * static_cast<double>(now.tv_sec) + 1e-6 * static_cast<double>(now.tv_nsec);
+}
+
+template <class Function>
+double cpuMillisecondsOf(Function&& function) {
+  const double start = threadCpuMilliseconds();
+  function();
+  return threadCpuMilliseconds() - start;
 }
 
 template <class Function>

@@ -45,22 +45,27 @@ def mss_section(rows):
              "stiffness-scaled masses, a bent pose (hip 0.5 rad, knee 0.8 rad) so springs are loaded. Median of "
              f"{int(rows[0]['repetitions'])} runs of {int(rows[0]['iterations_per_repetition'])} iterations each. "
              "The paper's figure is its Table 1 MSS line (s per 500 iterations / 500; Core2Duo E6300, 2006).", "",
-             "| particles/fibre | particles | springs | bytes/particle | ms/iteration (fixed dt) | ms/iteration (adaptive dt) "
-             "| paper ms/iteration | speed-up (fixed dt) | bandwidth floor ms |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "Wall time is what a user waits; thread CPU time leaves out the time the thread waited for a core on this "
+             "shared machine.", "",
+             "| particles/fibre | particles | springs | bytes/particle | ms/iteration (fixed dt) | CPU ms/iteration "
+             "| ms/iteration (adaptive dt) | paper ms/iteration | speed-up (wall) | bandwidth floor ms |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         lines.append(
             f"| {int(row['particles_per_fibre'])} | {int(row['particles'])} | {int(row['springs'])} | "
-            f"{int(row['bytes_per_particle'])} | {row['mss_ms_per_iteration']:.3f} | "
+            f"{int(row['bytes_per_particle'])} | {row['mss_ms_per_iteration']:.3f} | {row['mss_cpu_ms_per_iteration']:.3f} | "
             f"{row['mss_adaptive_dt_ms_per_iteration']:.3f} | {row['paper_mss_ms_per_iteration']:.1f} | "
             f"{row['paper_mss_ms_per_iteration'] / row['mss_ms_per_iteration']:.0f}x | {row['bandwidth_floor_ms']:.2f} |")
     last = rows[-1]
     target_ms = last["paper_mss_ms_per_iteration"] / 50.0
     verdict = "meets" if last["mss_ms_per_iteration"] <= target_ms else "misses"
+    cpu_verdict = "meets" if last["mss_cpu_ms_per_iteration"] <= target_ms else "misses"
     lines += ["",
-              f"Target: at 80 particles per fibre at least 50x the paper (<= {target_ms:.2f} ms). This run "
+              f"Target: at 80 particles per fibre at least 50x the paper (<= {target_ms:.2f} ms). In wall time this run "
               f"{verdict} it: {last['mss_ms_per_iteration']:.3f} ms, "
-              f"{last['paper_mss_ms_per_iteration'] / last['mss_ms_per_iteration']:.0f}x.",
+              f"{last['paper_mss_ms_per_iteration'] / last['mss_ms_per_iteration']:.0f}x; in thread CPU time it "
+              f"{cpu_verdict} it: {last['mss_cpu_ms_per_iteration']:.3f} ms, "
+              f"{last['paper_mss_ms_per_iteration'] / last['mss_cpu_ms_per_iteration']:.0f}x.",
               "",
               f"What bounds it: one iteration moves at least {last['bytes_moved_per_iteration'] / 1e6:.1f} MB "
               f"(packed springs 16 B each, plus per-particle state and forces); at the measured one-thread triad "
