@@ -101,6 +101,11 @@ SurfaceDistance::SurfaceDistance(const Eigen::Matrix3Xd& vertices, const Eigen::
 }
 
 double SurfaceDistance::distanceWithin(const Eigen::Vector3d& query, double max_distance) const {
+  const double best = nearestAmongCandidates(query, max_distance);
+  return best <= max_distance ? best : std::numeric_limits<double>::infinity();
+}
+
+double SurfaceDistance::nearestAmongCandidates(const Eigen::Vector3d& query, double max_distance) const {
   if (triangles_.cols() == 0) return std::numeric_limits<double>::infinity();
   // Any triangle with a point within max_distance has its centroid within max_distance + its own extent.
   std::vector<std::pair<std::int32_t, double>> candidates;
@@ -113,14 +118,15 @@ double SurfaceDistance::distanceWithin(const Eigen::Vector3d& query, double max_
                                                            vertices_.col(triangles_(2, t)));
     best = std::min(best, (closest - query).norm());
   }
-  return best <= max_distance ? best : std::numeric_limits<double>::infinity();
+  return best;
 }
 
 double SurfaceDistance::distance(const Eigen::Vector3d& query) const {
   if (triangles_.cols() == 0) return std::numeric_limits<double>::infinity();
-  // The nearest centroid bounds the true distance from above; search that far (plus triangle extent) exactly.
+  // The nearest centroid bounds the true distance from above, so the nearest triangle is among the candidates within
+  // that bound. Not compared with the bound again: rounding can put the exact answer a hair above it.
   const double upper = centroids_.nearest(query).second;
-  return distanceWithin(query, upper);
+  return nearestAmongCandidates(query, upper);
 }
 
 }  // namespace muscle_deformation

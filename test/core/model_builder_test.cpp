@@ -1,5 +1,6 @@
 // Building the mass-spring system from muscles and bones, and moving it with the bones.
 #include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/point_index.hpp"
 #include "muscle_deformation/core/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solver.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
@@ -259,4 +260,17 @@ TEST(RigidPretransform, TooFewBoneTransformsIsAnError) {
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
   ParticleState state;
   EXPECT_THROW(rigidPretransform(system, {Eigen::Isometry3d::Identity()}, state), std::invalid_argument);
+}
+
+TEST(SurfaceDistance, IsFiniteWhenTheClosestPointIsATriangleCentroid) {
+  // The query sits straight above a centroid: the exact distance equals the centroid bound up to rounding.
+  const TriangleMesh box = makeBoxMesh({0, 0, 0}, {0.3, 0.3, 0.3}, 0.1);
+  const SurfaceDistance surface(box.vertices, box.triangles);
+  for (Eigen::Index t = 0; t < box.triangleCount(); ++t) {
+    const Eigen::Vector3d a = box.vertices.col(box.triangles(0, t)), b = box.vertices.col(box.triangles(1, t)),
+                          c = box.vertices.col(box.triangles(2, t));
+    const Eigen::Vector3d normal = (b - a).cross(c - a).normalized();
+    const Eigen::Vector3d query = (a + b + c) / 3.0 + 0.0137 * normal;
+    EXPECT_NEAR(surface.distance(query), 0.0137, 1e-12) << "triangle " << t;
+  }
 }

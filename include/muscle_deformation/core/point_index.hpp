@@ -48,6 +48,9 @@ class SurfaceDistance {
   double distance(const Eigen::Vector3d& query) const;
 
  private:
+  // Smallest exact distance over the triangles whose centroid lies within max_distance + triangle extent.
+  double nearestAmongCandidates(const Eigen::Vector3d& query, double max_distance) const;
+
   Eigen::Matrix3Xd vertices_;
   Eigen::Matrix3Xi triangles_;
   PointIndex centroids_;
