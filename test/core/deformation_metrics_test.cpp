@@ -1,0 +1,187 @@
+// Specifications of the fidelity metrics: enclosed volume, the exact inside-bone test and its depth, fibre length
+// change, and refusal of open surfaces.
+#include "muscle_deformation/core/deformation_metrics.hpp"
+
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <string>
+
+namespace md = muscle_deformation;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+md::TriangleMesh unitCube() {
+  md::TriangleMesh mesh;
+  mesh.vertices.resize(3, 8);
+  mesh.vertices << 0, 1, 1, 0, 0, 1, 1, 0,  //
+      0, 0, 1, 1, 0, 0, 1, 1,               //
+      0, 0, 0, 0, 1, 1, 1, 1;
+  const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 4, 7, 3}, {1, 2, 6, 5}};
+  mesh.triangles.resize(3, 12);
+  for (int f = 0; f < 6; ++f) {
+    mesh.triangles.col(2 * f) << quads[f][0], quads[f][1], quads[f][2];
+    mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
+  }
+  return mesh;
+}
+
+// A one-muscle system whose single fibre is the polyline `fibre` (systemFromParticles: one muscle, one fibre).
+md::MassSpringSystem oneFibreSystem(const Eigen::Matrix3Xd& fibre) { return md::systemFromParticles(fibre, {}, 0.001, 10); }
+
+Eigen::Matrix3Xd straightFibre(int points) {
+  Eigen::Matrix3Xd fibre(3, points);
+  for (int k = 0; k < points; ++k) fibre.col(k) = Eigen::Vector3d(0.5, 0.5, 0.1 + 0.8 * k / (points - 1));
+  return fibre;
+}
+
+md::Muscle cubeMuscle() { return {"particles", unitCube(), {}}; }
+
+}  // namespace
+
+TEST(DeformationMetrics, VolumeOfAUnitCubeIsOne) {
+  const md::MassSpringSystem system = oneFibreSystem(straightFibre(5));
+  const md::DeformationMetrics metrics({}, {cubeMuscle()}, system);
+  EXPECT_NEAR(metrics.restVolume(0), 1.0, 1e-14);
+  const md::SceneMetrics scene = metrics.measure({unitCube().vertices}, system.rest_position, {});
+  EXPECT_NEAR(scene.muscles[0].volume_m3, 1.0, 1e-14);
+  EXPECT_NEAR(scene.muscles[0].volume_error_pct, 0.0, 1e-12);
+}
+
+TEST(DeformationMetrics, VolumeErrorOfACubeScaledByTwoIsSevenHundredPercent) {
+  const md::MassSpringSystem system = oneFibreSystem(straightFibre(5));
+  const md::DeformationMetrics metrics({}, {cubeMuscle()}, system);
+  const md::SceneMetrics scene = metrics.measure({2.0 * unitCube().vertices}, system.rest_position, {});
+  EXPECT_NEAR(scene.muscles[0].volume_error_pct, 700.0, 1e-9);
+  EXPECT_NEAR(scene.volume_error_max_pct, 700.0, 1e-9);
+  EXPECT_NEAR(scene.volume_error_mean_pct, 700.0, 1e-9);
+}
+
+TEST(DeformationMetrics, VolumeOfASphereMeshApproachesTheBallsVolume) {
+  // An icosphere is inscribed in its sphere: slightly less volume, converging as it is refined.
+  const double r = 0.05, ball = 4.0 / 3.0 * kPi * r * r * r;
+  const double coarse = md::enclosedVolume(md::makeSphereMesh({0.1, 0.2, 0.3}, r, 3));
+  const double fine = md::enclosedVolume(md::makeSphereMesh({0.1, 0.2, 0.3}, r, 5));
+  EXPECT_LT(coarse, ball);
+  EXPECT_NEAR(coarse / ball, 1.0, 0.01);
+  EXPECT_NEAR(fine / ball, 1.0, 0.001);
+}
+
+TEST(ClosedSurfaceInsideTest, AgreesWithTheSphereAwayFromItsSurface) {
+  // Tolerance near the surface: a subdivision-3 icosphere of radius r lies between 0.99 r and r from its centre, so
+  // points with |p - c| < 0.99 r are inside and points beyond r outside; the band between is not asserted.
+  const Eigen::Vector3d centre(0.01, -0.02, 0.03);
+  const double r = 0.04;
+  const md::ClosedSurfaceInsideTest sphere(md::makeSphereMesh(centre, r, 3), "sphere");
+  std::mt19937 random(3);
+  std::uniform_real_distribution<double> coordinate(-1.5 * r, 1.5 * r);
+  int inside = 0, outside = 0;
+  for (int i = 0; i < 5000; ++i) {
+    const Eigen::Vector3d offset(coordinate(random), coordinate(random), coordinate(random));
+    if (offset.norm() < 0.99 * r) {
+      EXPECT_TRUE(sphere.contains(centre + offset)) << offset.transpose();
+      ++inside;
+    } else if (offset.norm() > r) {
+      EXPECT_FALSE(sphere.contains(centre + offset)) << offset.transpose();
+      ++outside;
+    }
+  }
+  EXPECT_GT(inside, 500);
+  EXPECT_GT(outside, 500);
+  EXPECT_TRUE(sphere.contains(centre));  // its +z ray passes exactly through a mesh vertex
+}
+
+TEST(ClosedSurfaceInsideTest, IsRightWhenTheRayPassesExactlyThroughVerticesAndEdges) {
+  const double r = 1.0;
+  const md::TriangleMesh mesh = md::makeSphereMesh(Eigen::Vector3d::Zero(), r, 2);
+  const md::ClosedSurfaceInsideTest sphere(mesh, "sphere");
+  auto check = [&](const Eigen::Vector3d& on_ray) {
+    const Eigen::Vector3d point = on_ray - Eigen::Vector3d(0, 0, 0.3 * r);  // the +z ray from here hits on_ray
+    if (point.norm() < 0.98 * r) {
+      EXPECT_TRUE(sphere.contains(point)) << point.transpose();
+    } else if (point.norm() > r) {
+      EXPECT_FALSE(sphere.contains(point)) << point.transpose();
+    }
+  };
+  for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v) check(mesh.vertices.col(v));
+  for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
+    for (int e = 0; e < 3; ++e)
+      check(0.5 * (mesh.vertices.col(mesh.triangles(e, t)) + mesh.vertices.col(mesh.triangles((e + 1) % 3, t))));
+}
+
+TEST(ClosedSurfaceInsideTest, DepthIsTheDistanceToTheBoneSurface) {
+  const md::ClosedSurfaceInsideTest sphere(md::makeSphereMesh(Eigen::Vector3d::Zero(), 1.0, 4), "sphere");
+  // Within the mesh's sagitta (under 0.002 r at subdivision 4) of the analytic r - |p|.
+  EXPECT_NEAR(sphere.distanceToSurface(Eigen::Vector3d(0.2, 0.1, -0.3)), 1.0 - Eigen::Vector3d(0.2, 0.1, -0.3).norm(), 2e-3);
+}
+
+TEST(ClosedSurfaceInsideTest, RefusesAnOpenSurface) {
+  md::TriangleMesh open = md::makeSphereMesh(Eigen::Vector3d::Zero(), 1.0, 1);
+  open.triangles.conservativeResize(3, open.triangles.cols() - 2);
+  try {
+    md::ClosedSurfaceInsideTest test(open, "bone 'femur'");
+    FAIL() << "an open surface was accepted";
+  } catch (const md::MetricsError& error) {
+    const std::string message = error.what();
+    EXPECT_NE(message.find("femur"), std::string::npos) << message;
+    EXPECT_NE(message.find("not closed"), std::string::npos) << message;
+  }
+}
+
+TEST(DeformationMetrics, RefusesAnOpenMuscleSurface) {
+  md::Muscle muscle = cubeMuscle();
+  muscle.surface.triangles.conservativeResize(3, 11);
+  EXPECT_THROW(md::DeformationMetrics({}, {muscle}, oneFibreSystem(straightFibre(5))), md::MetricsError);
+}
+
+TEST(DeformationMetrics, CountsSurfaceVerticesInsideAPosedBoneWithTheirDepth) {
+  // A unit-cube muscle and a sphere bone of radius 2 moved (by the pose) so that its centre is the cube's centre: all
+  // 8 corners are inside, at depth 2 - sqrt(3)/2 from the sphere.
+  const md::Bone bone{0, "ball", md::makeSphereMesh(Eigen::Vector3d(5, 0, 0), 2.0, 4)};
+  const md::MassSpringSystem system = oneFibreSystem(straightFibre(5));
+  const md::DeformationMetrics metrics({bone}, {cubeMuscle()}, system);
+  const md::BoneTransforms pose = {Eigen::Isometry3d(Eigen::Translation3d(-4.5, 0.5, 0.5))};
+  const md::SceneMetrics scene = metrics.measure({unitCube().vertices}, system.rest_position, pose);
+  EXPECT_EQ(scene.muscles[0].vertices_inside_bone, 8);
+  EXPECT_EQ(scene.vertices_inside_bone, 8);
+  EXPECT_NEAR(scene.max_inside_bone_depth_m, 2.0 - std::sqrt(3.0) / 2, 0.005);
+  EXPECT_EQ(scene.muscles[0].deepest_bone, "ball");
+
+  const md::SceneMetrics at_rest = metrics.measure({unitCube().vertices}, system.rest_position, {});
+  EXPECT_EQ(at_rest.vertices_inside_bone, 0);  // the bone at rest is far away
+  EXPECT_EQ(at_rest.max_inside_bone_depth_m, 0.0);
+}
+
+TEST(DeformationMetrics, FibreLengthChangeOfAStretchedFibreIsItsStretch) {
+  const md::MassSpringSystem system = oneFibreSystem(straightFibre(7));
+  const md::DeformationMetrics metrics({}, {cubeMuscle()}, system);
+  Eigen::Matrix3Xd stretched = system.rest_position;
+  stretched.row(2) = (stretched.row(2).array() - 0.1) * 1.1 + 0.1;
+  const md::SceneMetrics scene = metrics.measure({unitCube().vertices}, stretched, {});
+  EXPECT_EQ(scene.muscles[0].fibres, 1);
+  EXPECT_NEAR(scene.muscles[0].fibre_length_change_mean_pct, 10.0, 1e-9);
+  EXPECT_NEAR(scene.muscles[0].fibre_length_change_min_pct, 10.0, 1e-9);
+  EXPECT_NEAR(scene.muscles[0].fibre_length_change_max_pct, 10.0, 1e-9);
+}
+
+TEST(DeformationMetrics, ReportsTheRangeOfFibreLengthChangeOverAMusclesFibres) {
+  const md::SyntheticScene scene = md::makeSyntheticThigh(1, 3);
+  const md::MassSpringSystem system = md::buildMassSpringSystem(scene.muscles, scene.bones, md::ModelSettings{});
+  const md::DeformationMetrics metrics(scene.bones, scene.muscles, system);
+  Eigen::Matrix3Xd moved = system.rest_position;
+  // Shorten the first fibre by moving all its particles but the first towards the first: 20 % shorter.
+  const Eigen::Vector3d first = moved.col(0);
+  for (Eigen::Index i = 1; i < moved.cols() && system.fibre_of[i] == system.fibre_of[0]; ++i)
+    moved.col(i) = first + 0.8 * (moved.col(i) - first);
+  const md::SceneMetrics result = metrics.measure({scene.muscles[0].surface.vertices}, moved, {});
+  EXPECT_EQ(result.muscles[0].fibres, 9);
+  EXPECT_NEAR(result.muscles[0].fibre_length_change_min_pct, -20.0, 1e-9);
+  EXPECT_NEAR(result.muscles[0].fibre_length_change_max_pct, 0.0, 1e-9);
+  EXPECT_NEAR(result.muscles[0].fibre_length_change_mean_pct, -20.0 / 9, 1e-9);
+}
