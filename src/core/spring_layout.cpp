@@ -160,43 +160,55 @@ ParticlePairs cubicLatticePairs(const Eigen::Matrix3Xd& points, const std::vecto
   return pairs;
 }
 
-ParticlePairs delaunayPairs(const Eigen::Matrix3Xd& points) {
+std::vector<Eigen::Vector4i> delaunayTetrahedra(const Eigen::Matrix3Xd& points) {
   const int count = static_cast<int>(points.cols());
-  if (count < 5) throw std::runtime_error("Delaunay layout needs at least 5 particles, got " + std::to_string(count));
+  if (count < 5) throw std::runtime_error("Delaunay tetrahedralisation needs at least 5 particles, got " + std::to_string(count));
   std::vector<coordT> coordinates(points.data(), points.data() + 3 * static_cast<std::size_t>(count));
 
   qhT qh_storage;
   qhT* qh = &qh_storage;
   QHULL_LIB_CHECK
   qh_zero(qh, stderr);
+  // "Qz" adds a point at infinity so that the many cospherical points of a fibre grid triangulate cleanly.
   char options[] = "qhull d Qbb Qt Qz";
   // qhull reports problems through its own error stream; keep it quiet and turn the exit code into an exception.
   FILE* quiet = std::fopen("/dev/null", "w");
   const int status = qh_new_qhull(qh, 3, count, coordinates.data(), False, options, nullptr, quiet ? quiet : stderr);
-  ParticlePairs pairs;
+  std::vector<Eigen::Vector4i> tetrahedra;
   if (status == 0) {
     facetT* facet;
     vertexT* vertex;
     vertexT** vertexp;
     FORALLfacets {
       if (facet->upperdelaunay) continue;
-      std::int32_t corner[4];
+      Eigen::Vector4i corner;
       int corners = 0;
+      bool finite = true;
       FOREACHvertex_(facet->vertices) {
         const int id = qh_pointid(qh, vertex->point);
-        if (corners < 4 && id >= 0 && id < count) corner[corners++] = id;  // skip the Qz point at infinity
+        if (id < 0 || id >= count)
+          finite = false;  // the Qz point at infinity
+        else if (corners < 4)
+          corner[corners++] = id;
       }
-      for (int a = 0; a < corners; ++a)
-        for (int b = a + 1; b < corners; ++b) pairs.emplace_back(corner[a], corner[b]);
+      if (finite && corners == 4) tetrahedra.push_back(corner);
     }
   }
   qh_freeqhull(qh, !qh_ALL);
   int current_long = 0, total_long = 0;
   qh_memfreeshort(qh, &current_long, &total_long);
   if (quiet) std::fclose(quiet);
-  if (status != 0)
+  if (status != 0 || tetrahedra.empty())
     throw std::runtime_error("Delaunay tetrahedralisation failed (qhull exit code " + std::to_string(status) +
                              "): the particles may be coplanar or degenerate");
+  return tetrahedra;
+}
+
+ParticlePairs delaunayPairs(const Eigen::Matrix3Xd& points) {
+  ParticlePairs pairs;
+  for (const Eigen::Vector4i& tetrahedron : delaunayTetrahedra(points))
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) pairs.emplace_back(tetrahedron[a], tetrahedron[b]);
   sortUnique(pairs);
   return pairs;
 }

@@ -1,13 +1,11 @@
 // Surface skinning: precompute per muscle at rest, then a cheap per-frame update from the particle positions.
 #include "muscle_deformation/core/surface_skinning.hpp"
 
+#include "muscle_deformation/core/spring_layout.hpp"
+
 #include "muscle_deformation/core/point_index.hpp"
 
 #include <Eigen/LU>
-
-extern "C" {
-#include <libqhull_r/qhull_ra.h>
-}
 
 #include <algorithm>
 #include <chrono>
@@ -37,47 +35,6 @@ SkinningMethod skinningMethodFromString(const std::string& name) {
 namespace {
 
 using Triplets = std::vector<Eigen::Triplet<double, std::int32_t>>;
-
-// Delaunay tetrahedra of the points (qhull "d Qbb Qt"; "Qz" adds a point at infinity so that the many cospherical
-// points of a fibre grid triangulate cleanly). Each tetrahedron: four point indices.
-std::vector<Eigen::Vector4i> delaunayTetrahedra(const Eigen::Matrix3Xd& points, const std::string& label) {
-  const int count = static_cast<int>(points.cols());
-  if (count < 5) throw SkinningError(label + ": embedding needs at least 5 particles, got " + std::to_string(count));
-  std::vector<coordT> coordinates(points.data(), points.data() + 3 * static_cast<std::size_t>(count));
-  qhT qh_storage;
-  qhT* qh = &qh_storage;
-  QHULL_LIB_CHECK
-  qh_zero(qh, stderr);
-  char options[] = "qhull d Qbb Qt Qz";
-  FILE* quiet = std::fopen("/dev/null", "w");
-  const int status = qh_new_qhull(qh, 3, count, coordinates.data(), False, options, nullptr, quiet ? quiet : stderr);
-  std::vector<Eigen::Vector4i> tetrahedra;
-  if (status == 0) {
-    facetT* facet;
-    vertexT* vertex;
-    vertexT** vertexp;
-    FORALLfacets {
-      if (facet->upperdelaunay) continue;
-      Eigen::Vector4i corner;
-      int corners = 0;
-      bool finite = true;
-      FOREACHvertex_(facet->vertices) {
-        const int id = qh_pointid(qh, vertex->point);
-        if (id < 0 || id >= count) finite = false;  // the Qz point at infinity
-        else if (corners < 4) corner[corners++] = id;
-      }
-      if (finite && corners == 4) tetrahedra.push_back(corner);
-    }
-  }
-  qh_freeqhull(qh, !qh_ALL);
-  int current_long = 0, total_long = 0;
-  qh_memfreeshort(qh, &current_long, &total_long);
-  if (quiet) std::fclose(quiet);
-  if (status != 0 || tetrahedra.empty())
-    throw SkinningError(label + ": Delaunay tetrahedralisation of the particles failed (qhull exit code " +
-                        std::to_string(status) + "): the particles may be coplanar");
-  return tetrahedra;
-}
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -160,7 +117,12 @@ void MuscleSkin::precomputeMeanValue(const Eigen::Matrix3Xd& rest_particles, con
 
 void MuscleSkin::precomputeEmbedded(const Eigen::Matrix3Xd& rest_particles, const Vertices& rest_vertices,
                                     int candidates) {
-  const std::vector<Eigen::Vector4i> tetrahedra = delaunayTetrahedra(rest_particles, "muscle " + std::to_string(muscle_));
+  std::vector<Eigen::Vector4i> tetrahedra;
+  try {
+    tetrahedra = delaunayTetrahedra(rest_particles);
+  } catch (const std::runtime_error& error) {
+    throw SkinningError("muscle " + std::to_string(muscle_) + ": embedding: " + error.what());
+  }
   diagnostics_.tetrahedra = static_cast<int>(tetrahedra.size());
   // Tetrahedra around each particle, and for each tetrahedron the map from a point to its barycentric coordinates
   // (rows 1..3; the first coordinate is 1 minus their sum). Flat slivers (Qt output on cospherical grids) are left

@@ -5,6 +5,8 @@
 #include "muscle_deformation/core/model_builder.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
+#include "test_meshes.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -17,20 +19,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-md::TriangleMesh unitCube() {
-  md::TriangleMesh mesh;
-  mesh.vertices.resize(3, 8);
-  mesh.vertices << 0, 1, 1, 0, 0, 1, 1, 0,  //
-      0, 0, 1, 1, 0, 0, 1, 1,               //
-      0, 0, 0, 0, 1, 1, 1, 1;
-  const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 4, 7, 3}, {1, 2, 6, 5}};
-  mesh.triangles.resize(3, 12);
-  for (int f = 0; f < 6; ++f) {
-    mesh.triangles.col(2 * f) << quads[f][0], quads[f][1], quads[f][2];
-    mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
-  }
-  return mesh;
-}
+using muscle_deformation::testing::unitCube;
 
 // A one-muscle system whose single fibre is the polyline `fibre` (systemFromParticles: one muscle, one fibre).
 md::MassSpringSystem oneFibreSystem(const Eigen::Matrix3Xd& fibre) { return md::systemFromParticles(fibre, {}, 0.001, 10); }

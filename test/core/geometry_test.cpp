@@ -1,6 +1,8 @@
 // Specifications of the basic mesh geometry: bounds, topology checks, volume, normals, closest points.
 #include "muscle_deformation/core/geometry.hpp"
 
+#include "test_meshes.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -12,21 +14,7 @@ namespace md = muscle_deformation;
 
 namespace {
 
-// Unit cube [0,1]^3, two triangles per face, counter-clockwise seen from outside.
-md::TriangleMesh unitCube() {
-  md::TriangleMesh mesh;
-  mesh.vertices.resize(3, 8);
-  mesh.vertices << 0, 1, 1, 0, 0, 1, 1, 0,  //
-      0, 0, 1, 1, 0, 0, 1, 1,               //
-      0, 0, 0, 0, 1, 1, 1, 1;
-  const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 4, 7, 3}, {1, 2, 6, 5}};
-  mesh.triangles.resize(3, 12);
-  for (int f = 0; f < 6; ++f) {
-    mesh.triangles.col(2 * f) << quads[f][0], quads[f][1], quads[f][2];
-    mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
-  }
-  return mesh;
-}
+using muscle_deformation::testing::unitCube;
 
 // UV sphere: poles plus (stacks - 1) rings of `slices` vertices, outward winding.
 md::TriangleMesh uvSphere(double radius, int slices, int stacks) {

@@ -6,6 +6,8 @@
 #include "muscle_deformation/core/rigid_pretransform.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
+#include "test_meshes.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -16,21 +18,7 @@ namespace md = muscle_deformation;
 
 namespace {
 
-// Unit cube [0,1]^3, outward winding.
-md::TriangleMesh unitCube() {
-  md::TriangleMesh mesh;
-  mesh.vertices.resize(3, 8);
-  mesh.vertices << 0, 1, 1, 0, 0, 1, 1, 0,  //
-      0, 0, 1, 1, 0, 0, 1, 1,               //
-      0, 0, 0, 0, 1, 1, 1, 1;
-  const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 4, 7, 3}, {1, 2, 6, 5}};
-  mesh.triangles.resize(3, 12);
-  for (int f = 0; f < 6; ++f) {
-    mesh.triangles.col(2 * f) << quads[f][0], quads[f][1], quads[f][2];
-    mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
-  }
-  return mesh;
-}
+using muscle_deformation::testing::unitCube;
 
 // One spindle muscle, 8 x 8 fibres of 20 particles, no bones (fibre ends fixed in space).
 struct SpindleFixture {

@@ -32,8 +32,11 @@ ParticlePairs nearestNeighbourPairs(const Eigen::Matrix3Xd& points, int neighbou
 ParticlePairs cubicLatticePairs(const Eigen::Matrix3Xd& points, const std::vector<std::int32_t>& fibre_of,
                                 const std::vector<std::int32_t>& sample_of, bool with_diagonals);
 
-// Edges of the Delaunay tetrahedralisation (qhull "d Qbb Qt"). Throws std::runtime_error if qhull fails
-// (e.g. fewer than 5 points or all coplanar).
+// Delaunay tetrahedralisation of the points (qhull "d Qbb Qt Qz"), each tetrahedron as four point indices. Throws
+// std::runtime_error if qhull fails (e.g. fewer than 5 points or all coplanar).
+std::vector<Eigen::Vector4i> delaunayTetrahedra(const Eigen::Matrix3Xd& points);
+
+// Edges of that tetrahedralisation.
 ParticlePairs delaunayPairs(const Eigen::Matrix3Xd& points);
 
 }  // namespace muscle_deformation

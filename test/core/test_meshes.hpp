@@ -1,0 +1,25 @@
+// Small analytic meshes shared by the core tests.
+#pragma once
+
+#include "muscle_deformation/core/geometry.hpp"
+
+namespace muscle_deformation::testing {
+
+// Unit cube [0,1]^3, two triangles per face, counter-clockwise seen from outside; vertex i has coordinates
+// (x, y, z) with x, y from the bottom face's corners 0..3 counter-clockwise and z = i / 4.
+inline TriangleMesh unitCube() {
+  TriangleMesh mesh;
+  mesh.vertices.resize(3, 8);
+  mesh.vertices << 0, 1, 1, 0, 0, 1, 1, 0,  //
+      0, 0, 1, 1, 0, 0, 1, 1,               //
+      0, 0, 0, 0, 1, 1, 1, 1;
+  const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 4, 7, 3}, {1, 2, 6, 5}};
+  mesh.triangles.resize(3, 12);
+  for (int f = 0; f < 6; ++f) {
+    mesh.triangles.col(2 * f) << quads[f][0], quads[f][1], quads[f][2];
+    mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
+  }
+  return mesh;
+}
+
+}  // namespace muscle_deformation::testing
