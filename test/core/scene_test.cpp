@@ -1,0 +1,353 @@
+// Specifications of scene loading: URDF skeleton and forward kinematics, the scene YAML, and the bundled scene.
+#include "muscle_deformation/core/scene.hpp"
+
+#include "muscle_deformation/core/mesh_io.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#ifndef MD_PACKAGE_DIR
+#define MD_PACKAGE_DIR "."
+#endif
+
+namespace md = muscle_deformation;
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::string kPackage = MD_PACKAGE_DIR;
+const std::string kBundledUrdf = kPackage + "/urdf/right_hip_thigh.urdf";
+const std::string kBundledScene = kPackage + "/config/scenes/right_hip_thigh.yaml";
+
+#define EXPECT_CONTAINS(text, part) \
+  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
+
+template <typename Call>
+std::string sceneErrorOf(Call&& call) {
+  try {
+    call();
+  } catch (const md::SceneError& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "threw something other than SceneError: " << e.what();
+    return "";
+  }
+  ADD_FAILURE() << "did not throw";
+  return "";
+}
+
+// Two links, a revolute joint about z at (1, 0, 0.5) in the base frame, the child's origin 2 m along its x.
+const char* const kArmUrdf = R"(<?xml version="1.0"?>
+<robot name="arm">
+  <link name="base"/>
+  <joint name="shoulder" type="revolute">
+    <parent link="base"/>
+    <child link="upper"/>
+    <origin xyz="1 0 0.5" rpy="0 0 0"/>
+    <axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/>
+  </joint>
+  <link name="upper"/>
+  <joint name="hand_fixed" type="fixed">
+    <parent link="upper"/>
+    <child link="hand"/>
+    <origin xyz="2 0 0" rpy="0 0 0"/>
+  </joint>
+  <link name="hand"/>
+</robot>)";
+
+// A prismatic slider, and a revolute joint mimicking it (2 rad per metre, offset 0.1 rad).
+const char* const kSliderUrdf = R"(<?xml version="1.0"?>
+<robot name="slider">
+  <link name="base"/>
+  <joint name="slide" type="prismatic">
+    <parent link="base"/>
+    <child link="carriage"/>
+    <origin xyz="0 0 0" rpy="0 0 0"/>
+    <axis xyz="0 2 0"/>
+    <limit lower="0" upper="1" effort="1" velocity="1"/>
+  </joint>
+  <link name="carriage"/>
+  <joint name="follower" type="revolute">
+    <parent link="carriage"/>
+    <child link="wheel"/>
+    <origin xyz="0 0 1" rpy="0 0 1.5707963267948966"/>
+    <axis xyz="1 0 0"/>
+    <limit lower="-10" upper="10" effort="1" velocity="1"/>
+    <mimic joint="slide" multiplier="2" offset="0.1"/>
+  </joint>
+  <link name="wheel"/>
+</robot>)";
+
+std::string writeTemp(const std::string& name, const std::string& text) {
+  const fs::path path = fs::temp_directory_path() / ("md_scene_test_" + name);
+  std::ofstream(path) << text;
+  return path.string();
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------------------------
+// Skeleton
+
+TEST(Skeleton, RevoluteJointGivesTheAnalyticLinkPoses) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kArmUrdf, "arm");
+  EXPECT_EQ(skeleton.rootLink(), "base");
+  ASSERT_EQ(skeleton.links().size(), 3u);
+  EXPECT_EQ(skeleton.links()[1].parent_link, "base");
+  EXPECT_EQ(skeleton.links()[1].parent_joint, "shoulder");
+  EXPECT_EQ(skeleton.movableJointNames(), std::vector<std::string>{"shoulder"});
+
+  const double q = 0.3;
+  const auto poses = skeleton.linkPoses({{"shoulder", q}});
+  const Eigen::Vector3d shoulder(1, 0, 0.5);
+  EXPECT_TRUE(poses.at("base").isApprox(Eigen::Isometry3d::Identity()));
+  EXPECT_TRUE(poses.at("upper").translation().isApprox(shoulder, 1e-12));
+  EXPECT_TRUE(poses.at("upper").linear().isApprox(Eigen::AngleAxisd(q, Eigen::Vector3d::UnitZ()).toRotationMatrix()));
+  const Eigen::Vector3d hand = shoulder + 2.0 * Eigen::Vector3d(std::cos(q), std::sin(q), 0);
+  EXPECT_TRUE(poses.at("hand").translation().isApprox(hand, 1e-12)) << poses.at("hand").translation().transpose();
+}
+
+TEST(Skeleton, MissingJointValuesMeanZero) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kArmUrdf, "arm");
+  const auto poses = skeleton.linkPoses({});
+  EXPECT_TRUE(poses.at("hand").translation().isApprox(Eigen::Vector3d(3, 0, 0.5), 1e-12));
+}
+
+TEST(Skeleton, PrismaticJointTranslatesAlongItsNormalisedAxisAndMimicFollows) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kSliderUrdf, "slider");
+  const md::SkeletonJoint* follower = skeleton.joint("follower");
+  ASSERT_NE(follower, nullptr);
+  EXPECT_EQ(follower->mimic_joint, "slide");
+  EXPECT_DOUBLE_EQ(follower->mimic_multiplier, 2.0);
+  EXPECT_DOUBLE_EQ(follower->mimic_offset, 0.1);
+
+  const double s = 0.25;
+  const auto poses = skeleton.linkPoses({{"slide", s}});
+  EXPECT_TRUE(poses.at("carriage").translation().isApprox(Eigen::Vector3d(0, s, 0), 1e-12));  // axis normalised
+  // wheel = carriage * (translate z 1, yaw 90 deg) * rotate about x by 2 s + 0.1.
+  const Eigen::Matrix3d expected = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                                   Eigen::AngleAxisd(2 * s + 0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  EXPECT_TRUE(poses.at("wheel").translation().isApprox(Eigen::Vector3d(0, s, 1), 1e-12));
+  EXPECT_TRUE(poses.at("wheel").linear().isApprox(expected, 1e-12));
+}
+
+TEST(Skeleton, ValueOutsideTheLimitsIsAcceptedWithAWarning) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kArmUrdf, "arm");
+  std::vector<std::string> warnings;
+  skeleton.linkPoses({{"shoulder", 2.0}}, &warnings);
+  ASSERT_EQ(warnings.size(), 1u);
+  EXPECT_CONTAINS(warnings[0], "shoulder");
+}
+
+TEST(Skeleton, UnknownJointAndNonFiniteValuesAreRejected) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kArmUrdf, "arm");
+  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"elbow", 0.1}}); }), "unknown joint 'elbow'");
+  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"shoulder", std::nan("")}}); }), "non-finite");
+  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"shoulder", INFINITY}}); }), "'shoulder'");
+}
+
+TEST(Skeleton, MalformedUrdfNamesItsSource) {
+  EXPECT_CONTAINS(sceneErrorOf([] { md::Skeleton::fromUrdfString("<robot name='x'><link", "my.urdf"); }), "my.urdf");
+  EXPECT_CONTAINS(sceneErrorOf([] { md::Skeleton::fromUrdfFile("/nonexistent/robot.urdf"); }), "/nonexistent/robot.urdf");
+}
+
+TEST(Skeleton, BundledUrdfParsesWithJointsInDocumentOrder) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kBundledUrdf);
+  EXPECT_EQ(skeleton.rootLink(), "world");
+  const std::vector<std::string> expected{"pelvis_tx",      "pelvis_ty",       "pelvis_tz",      "pelvis_tilt",
+                                          "pelvis_list",    "pelvis_rotation", "hip_flexion_r",  "hip_adduction_r",
+                                          "hip_rotation_r", "knee_tx_r",       "knee_ty_r",      "knee_angle_r"};
+  EXPECT_EQ(skeleton.movableJointNames(), expected);
+  for (const char* bone : {"pelvis", "femur_r", "tibia_r", "patella_r"}) {
+    ASSERT_NE(skeleton.link(bone), nullptr) << bone;
+    EXPECT_FALSE(skeleton.link(bone)->collision_meshes.empty()) << bone;
+  }
+}
+
+TEST(Skeleton, EveryMeshTheBundledUrdfReferencesLoads) {
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kBundledUrdf);
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage + "/urdf");
+  int meshes = 0;
+  for (const md::SkeletonLink& link : skeleton.links()) {
+    for (const md::CollisionMeshRef& ref : link.collision_meshes) {
+      const md::TriangleMesh mesh = md::loadTriangleMesh(resolve(ref.uri));
+      EXPECT_GT(mesh.triangleCount(), 100) << ref.uri;
+      EXPECT_TRUE(md::checkSurfaceTopology(mesh).closedManifold()) << ref.uri << ": "
+                                                                   << md::checkSurfaceTopology(mesh).describe();
+      ++meshes;
+    }
+  }
+  EXPECT_GE(meshes, 8);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// URIs
+
+TEST(Scene, UriResolverHandlesPackageFileAndRelativeUris) {
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage + "/data");
+  const std::string femur = kPackage + "/data/meshes/bones/femur_r.stl";
+  EXPECT_TRUE(fs::equivalent(resolve("package://muscle_deformation/data/meshes/bones/femur_r.stl"), femur));
+  EXPECT_TRUE(fs::equivalent(resolve("file://" + fs::absolute(femur).string()), femur));
+  EXPECT_TRUE(fs::equivalent(resolve("meshes/bones/femur_r.stl"), femur));
+  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("package://other_pkg/a.stl"); }), "unknown package 'other_pkg'");
+  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("http://example.com/a.stl"); }), "unsupported URI scheme");
+  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("meshes/missing.stl"); }), "meshes/missing.stl");
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Scene YAML
+
+TEST(Scene, BundledSceneDescriptionHasTwentySixMusclesOnUrdfLinks) {
+  const md::SceneDescription scene = md::loadSceneDescription(kBundledScene);
+  EXPECT_EQ(scene.urdf_file, "urdf/right_hip_thigh.urdf");
+  EXPECT_EQ(scene.frame, "pelvis");
+  ASSERT_EQ(scene.muscles.size(), 26u);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene.urdf_file, kPackage));
+  for (const auto& m : scene.muscles) {
+    EXPECT_NE(skeleton.link(m.origin_bone), nullptr) << m.name;
+    EXPECT_NE(skeleton.link(m.insertion_bone), nullptr) << m.name;
+    EXPECT_FALSE(m.tags.empty()) << m.name;
+  }
+  EXPECT_EQ(md::selectMuscles(scene, {"thigh13"}).size(), 13u);
+}
+
+TEST(Scene, MissingKeyNamesTheFileAndLine) {
+  const std::string path = writeTemp("missing_key.yaml",
+                                     "urdf: robot.urdf\n"
+                                     "frame: base\n"
+                                     "muscles:\n"
+                                     "- name: a\n"
+                                     "  surface: a.stl\n"
+                                     "  fibres: a.vtk\n"
+                                     "  origin_bone: base\n"
+                                     "- name: b\n"
+                                     "  surface: b.stl\n"
+                                     "  fibres: b.vtk\n"
+                                     "  insertion_bone: base\n");
+  const std::string message = sceneErrorOf([&] { md::loadSceneDescription(path); });
+  EXPECT_CONTAINS(message, path + " line 4");
+  EXPECT_CONTAINS(message, "muscle 'a' has no 'insertion_bone' key");
+
+  const std::string no_frame = writeTemp("no_frame.yaml", "urdf: robot.urdf\nmuscles: []\n");
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(no_frame); }), "no 'frame' key");
+}
+
+TEST(Scene, MalformedValuesAndYamlNameTheLine) {
+  const std::string colour = writeTemp("bad_colour.yaml",
+                                       "urdf: robot.urdf\nframe: base\nmuscles:\n"
+                                       "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
+                                       "   color: [1, 2, 0]}\n");
+  const std::string message = sceneErrorOf([&] { md::loadSceneDescription(colour); });
+  EXPECT_CONTAINS(message, " line 5");
+  EXPECT_CONTAINS(message, "[0, 1]");
+
+  const std::string broken = writeTemp("broken.yaml", "urdf: robot.urdf\nframe: [base\n");
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(broken); }), "not valid YAML");
+  EXPECT_CONTAINS(sceneErrorOf([] { md::loadSceneDescription("/nonexistent/scene.yaml"); }), "/nonexistent/scene.yaml");
+}
+
+TEST(Scene, DuplicateMuscleNamesAreRejected) {
+  const std::string path = writeTemp("duplicate.yaml",
+                                     "urdf: r.urdf\nframe: base\nmuscles:\n"
+                                     "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b}\n"
+                                     "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b}\n");
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(path); }), "'a' is used twice");
+}
+
+TEST(Scene, SelectionTakesNamesAndTagsInSceneOrderAndNamesUnknownEntries) {
+  const md::SceneDescription scene = md::loadSceneDescription(kBundledScene);
+  const auto picked = md::selectMuscles(scene, {"piriformis", "thigh13", "rectus_femoris"});
+  ASSERT_EQ(picked.size(), 14u);
+  EXPECT_EQ(picked.front().name, scene.muscles.front().name);
+  EXPECT_EQ(picked.back().name, "piriformis");
+  EXPECT_EQ(md::selectMuscles(scene, {}).size(), scene.muscles.size());
+  const std::string message = sceneErrorOf([&] { md::selectMuscles(scene, {"sartorius", "rectus_femur", "legs"}); });
+  EXPECT_CONTAINS(message, "'rectus_femur', 'legs'");
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Bundled data
+
+TEST(Scene, EveryBundledMuscleSurfaceIsClosedAndTwoManifold) {
+  const md::SceneDescription scene = md::loadSceneDescription(kBundledScene);
+  for (const auto& m : scene.muscles) {
+    const md::TriangleMesh surface = md::loadTriangleMesh(md::resolveScenePath(m.surface_file, kPackage));
+    const md::SurfaceTopologyReport report = md::checkSurfaceTopology(surface);
+    EXPECT_TRUE(report.closedManifold()) << m.name << ": " << report.describe();
+    EXPECT_GT(md::enclosedVolume(surface), 0.0) << m.name << " is wound inwards";
+  }
+}
+
+TEST(Scene, BundledSceneLoadsWithBonesFibresAndRestPoses) {
+  const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {"sartorius", "piriformis"});
+  ASSERT_EQ(scene.muscles.size(), 2u);
+  EXPECT_EQ(scene.muscles[0].name, "sartorius");
+  EXPECT_EQ(scene.muscle_descriptions[1].name, "piriformis");
+  for (const md::Muscle& m : scene.muscles) EXPECT_GE(m.fibres.size(), 16u) << m.name;
+
+  // Bones: the links with collision meshes, in URDF order, ids = index.
+  std::vector<std::string> names;
+  for (std::size_t i = 0; i < scene.bones.size(); ++i) {
+    EXPECT_EQ(scene.bones[i].id, static_cast<int>(i));
+    names.push_back(scene.bones[i].name);
+  }
+  EXPECT_EQ(names, (std::vector<std::string>{"pelvis", "femur_r", "tibia_r", "patella_r"}));
+  // The pelvis carries sacrum, coccyx and both hip bones: all four merged.
+  const auto& pelvis = scene.bones[0].surface;
+  EXPECT_TRUE(md::checkSurfaceTopology(pelvis).closedManifold());
+  EXPECT_GT(pelvis.triangleCount(), 4 * 2000);
+
+  // Scene frame = pelvis, which sits at the world origin at zero: the femur is placed by the hip joint origin.
+  EXPECT_TRUE(scene.rest_link_poses.at("pelvis").isApprox(Eigen::Isometry3d::Identity()));
+  EXPECT_TRUE(scene.rest_link_poses.at("femur_r").translation().isApprox(
+      Eigen::Vector3d(-0.0737727, -0.0992777, -0.0591175), 1e-9));
+  // A bone at rest lies where its link frame puts its mesh: the femur spans the thigh below the hip.
+  const md::AlignedBox femur = md::boundsOf(scene.bones[1].surface.vertices);
+  EXPECT_LT(femur.min.z(), -0.35);
+  EXPECT_GT(femur.max.z(), -0.1);
+}
+
+TEST(Scene, UnknownBoneOrMissingFibreFileIsASceneError) {
+  md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  description.muscles[0].insertion_bone = "kneecap";
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
+                  "bone 'kneecap'");
+  description = md::loadSceneDescription(kBundledScene);
+  description.muscles[0].fibre_file = "data/fibres/none.vtk";
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
+                  "generate_fibres");
+  description.frame = "thorax";
+  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage); }), "'thorax'");
+}
+
+TEST(Scene, PoseFromLinkPosesMovesBonesRelativeToRest) {
+  const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  md::Scene scene;
+  scene.skeleton = skeleton;
+  scene.rest_link_poses = skeleton.linkPoses({});
+  for (const char* name : {"pelvis", "femur_r"}) {
+    md::Bone bone;
+    bone.name = name;
+    scene.bones.push_back(bone);
+  }
+  const auto bent = skeleton.linkPoses({{"hip_flexion_r", 0.5}});
+  const md::Pose pose = md::poseFromLinkPoses(scene, bent);
+  EXPECT_TRUE(pose.transformOf("pelvis").isApprox(Eigen::Isometry3d::Identity()));
+  // The hip centre stays put and the femur turns by 0.5 rad.
+  const Eigen::Vector3d hip = scene.rest_link_poses.at("femur_r").translation();
+  EXPECT_TRUE((pose.transformOf("femur_r") * hip).isApprox(hip, 1e-12));
+  EXPECT_NEAR(Eigen::AngleAxisd(pose.transformOf("femur_r").linear()).angle(), 0.5, 1e-12);
+}
