@@ -11,7 +11,14 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
     throw std::invalid_argument("collision settings: " + problem);
   system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
   solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
-  if (settings_.collisions) collision_ = std::make_unique<CollisionWorld>(system_, bones_, settings_.collision);
+  if (settings_.collisions) {
+    std::vector<SphereSet> bone_spheres;
+    for (const Bone& bone : bones_) bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings_.collision.bone_sphere_rule));
+    rest_overlaps_ = clearRestOverlaps(system_, bone_spheres);
+    std::vector<std::string> bone_names;
+    for (const Bone& bone : bones_) bone_names.push_back(bone.name);
+    collision_ = std::make_unique<CollisionWorld>(system_, std::move(bone_spheres), settings_.collision, bone_names);
+  }
   state_ = restState(system_);
 }
 

@@ -51,12 +51,15 @@ class MuscleSimulation {
   const ModelBuildReport& buildReport() const { return build_report_; }
   const SimulationSettings& settings() const { return settings_; }
   const CollisionWorld* collisionWorld() const { return collision_.get(); }
+  // Sphere radii shrunk at build time so that the rest pose is free of contacts (clearRestOverlaps).
+  const RestOverlapSummary& restOverlaps() const { return rest_overlaps_; }
 
  private:
   std::vector<Muscle> muscles_;
   std::vector<Bone> bones_;
   SimulationSettings settings_;
   ModelBuildReport build_report_;
+  RestOverlapSummary rest_overlaps_;
   MassSpringSystem system_;
   std::unique_ptr<VerletSolver> solver_;
   std::unique_ptr<CollisionWorld> collision_;

@@ -1,0 +1,83 @@
+// The whole core pipeline: model, collision and solver behind MuscleSimulation.
+#include "muscle_deformation/core/simulation.hpp"
+#include "muscle_deformation/core/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+using namespace muscle_deformation;
+
+namespace {
+
+// Two spindles close enough that their collision spheres overlap at rest, around a rod that grazes both.
+SimulationSettings smallSettings() {
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.model.nearest_neighbours = 8;
+  settings.solver.max_iterations = 50;
+  return settings;
+}
+
+std::vector<Muscle> packedMuscles() {
+  return {makeSpindleMuscle("left", {-0.017, 0, 0}, {-0.017, 0, 0.2}, 0.02, 1.0, 4, 30),
+          makeSpindleMuscle("right", {0.017, 0, 0}, {0.017, 0, 0.2}, 0.02, 1.0, 4, 30)};
+}
+
+std::vector<Bone> grazingBones() {
+  return {{0, "rod", makeCylinderMesh({0, 0.022, -0.05}, {0, 0.022, 0.25}, 0.006, 16, 60)},
+          {1, "base", makeBoxMesh({-0.06, -0.06, -0.03}, {0.06, 0.06, -0.001}, 0.005)}};
+}
+
+}  // namespace
+
+TEST(RestOverlaps, TouchingMusclesAndBonesDoNotDeformAtRest) {
+  MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
+  const RestOverlapSummary& cleared = simulation.restOverlaps();
+  EXPECT_GT(cleared.muscle_muscle_pairs + cleared.muscle_bone_pairs, 0) << "the fixture should overlap at rest";
+  const FrameStats stats = simulation.solve(Pose{}, StartMode::cold);
+  // The rigid pre-transform blends identity transforms, exact up to rounding.
+  EXPECT_LT((simulation.state().position - simulation.system().rest_position).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_EQ(stats.collision.max_penetration_muscle_muscle_m, 0.0);
+  EXPECT_EQ(stats.collision.max_penetration_muscle_bone_m, 0.0);
+}
+
+TEST(RestOverlaps, ShrunkSpheresJustTouchAndCentresInsideABoneSphereLoseTheirSphere) {
+  Eigen::Matrix3Xd positions(3, 3);
+  positions << 0, 0.015, 0.5,  //
+      0, 0, 0,                 //
+      0, 0, 0;
+  MassSpringSystem system = systemFromParticles(positions, {}, 0.001, 1.0);
+  system.muscle_of = {0, 1, 2};
+  system.muscle_begin = {0, 1, 2, 3};
+  system.muscle_name = {"a", "b", "c"};
+  system.is_boundary.assign(3, 1);
+  system.radius << 0.01, 0.02, 0.01;
+  SphereSet bone;
+  bone.resize(1);
+  bone.centre.col(0) = Eigen::Vector3d(0.5, 0, 0.005);
+  bone.radius[0] = 0.02;  // particle 2 sits inside it
+  const RestOverlapSummary summary = clearRestOverlaps(system, {bone});
+  EXPECT_NEAR(system.radius[0] + system.radius[1], 0.015, 1e-15);  // a and b now just touch
+  EXPECT_NEAR(system.radius[1] / system.radius[0], 2.0, 1e-12);     // both scaled by the same factor
+  EXPECT_EQ(system.radius[2], 0.0);
+  EXPECT_EQ(summary.spheres_removed, 1);
+  EXPECT_EQ(summary.muscle_muscle_pairs, 1);
+}
+
+TEST(Simulation, WarmStartAfterAColdOneStartsFromThePreviousResult) {
+  MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
+  Pose pose;
+  pose.bone_transforms["rod"] = Eigen::Isometry3d(Eigen::Translation3d(0.004, 0, 0));
+  EXPECT_FALSE(simulation.solve(pose, StartMode::warm).warm_started);  // nothing to warm-start from yet
+  EXPECT_TRUE(simulation.solve(pose, StartMode::warm).warm_started);
+  simulation.reset();
+  EXPECT_FALSE(simulation.solve(pose, StartMode::warm).warm_started);
+}
+
+TEST(Simulation, ANonFinitePoseIsRejected) {
+  MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
+  Pose pose;
+  Eigen::Isometry3d broken = Eigen::Isometry3d::Identity();
+  broken.translation().x() = std::nan("");
+  pose.bone_transforms["rod"] = broken;
+  EXPECT_THROW(simulation.solve(pose, StartMode::cold), std::invalid_argument);
+}
