@@ -10,7 +10,11 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
   system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
-  solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
+  // The local/global solver factorises its matrix here, once: it depends on the model and settings, not the pose.
+  if (settings_.solver_kind == SolverKind::local_global)
+    local_global_solver_ = std::make_unique<LocalGlobalSolver>(system_, settings_.local_global);
+  else
+    solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
   if (settings_.collisions) {
     std::vector<SphereSet> bone_spheres;
     for (const Bone& bone : bones_) bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings_.collision.bone_sphere_rule));
@@ -38,10 +42,11 @@ FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
   if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
-    stats.solve = solver_->solve(state_, [this](ParticleState& state) { return collision_->resolve(state); });
+    const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };
+    stats.solve = solver_ ? solver_->solve(state_, resolve) : local_global_solver_->solve(state_, resolve);
     stats.collision = collision_->measure(state_);
   } else {
-    stats.solve = solver_->solve(state_);
+    stats.solve = solver_ ? solver_->solve(state_) : local_global_solver_->solve(state_);
   }
   stats.finite = state_.position.allFinite();
   previous_transforms_ = transforms;

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "muscle_deformation/core/collision.hpp"
+#include "muscle_deformation/core/local_global_solver.hpp"
 #include "muscle_deformation/core/mass_spring_system.hpp"
 #include "muscle_deformation/core/model.hpp"
 #include "muscle_deformation/core/model_builder.hpp"
@@ -19,7 +20,9 @@ namespace muscle_deformation {
 
 struct SimulationSettings {
   ModelSettings model;
-  SolverSettings solver;
+  SolverKind solver_kind = SolverKind::verlet;  // which solver MuscleSimulation runs
+  SolverSettings solver;                        // for SolverKind::verlet
+  LocalGlobalSettings local_global;             // for SolverKind::local_global
   CollisionSettings collision;
   bool collisions = true;  // false: the MSS alone (for comparisons)
 };
@@ -61,7 +64,8 @@ class MuscleSimulation {
   ModelBuildReport build_report_;
   RestOverlapSummary rest_overlaps_;
   MassSpringSystem system_;
-  std::unique_ptr<VerletSolver> solver_;
+  std::unique_ptr<VerletSolver> solver_;                  // set for SolverKind::verlet
+  std::unique_ptr<LocalGlobalSolver> local_global_solver_;  // set for SolverKind::local_global
   std::unique_ptr<CollisionWorld> collision_;
   ParticleState state_;
   BoneTransforms previous_transforms_;

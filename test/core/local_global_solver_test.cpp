@@ -1,0 +1,321 @@
+// Local/global implicit mass-spring solver (Liu et al. 2013) with the Projective Dynamics volume term, on small
+// analytic systems.
+#include "muscle_deformation/core/local_global_solver.hpp"
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/simulation.hpp"
+#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/spring_layout.hpp"
+#include "muscle_deformation/core/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+using namespace muscle_deformation;
+
+namespace {
+
+ParticleState stateAt(const Eigen::Matrix3Xd& positions) {
+  ParticleState state;
+  state.position = positions;
+  state.previous_position = positions;
+  return state;
+}
+
+double springEnergy(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
+  double energy = 0;
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const auto e = static_cast<Eigen::Index>(s);
+    const double length = (position.col(system.springs.second[s]) - position.col(system.springs.first[s])).norm();
+    energy += 0.5 * system.springs.stiffness[e] * std::pow(length - system.springs.rest_length[e], 2);
+  }
+  return energy;
+}
+
+// A straight chain of `links` unit springs along x, both ends fixed.
+MassSpringSystem fixedChain(int links) {
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, links + 1);
+  ParticlePairs springs;
+  for (int i = 0; i <= links; ++i) positions(0, i) = i;
+  for (int i = 0; i < links; ++i) springs.emplace_back(i, i + 1);
+  MassSpringSystem system = systemFromParticles(positions, springs, 1.0, 1.0);
+  system.is_fixed[0] = 1;
+  system.is_fixed[static_cast<std::size_t>(links)] = 1;
+  return system;
+}
+
+// A side x side x side grid of unit spacing, jittered (so that its Delaunay tetrahedralisation is not degenerate),
+// joined by the Delaunay edges; the bottom (z = 0) and top layers are fixed.
+MassSpringSystem jitteredCube(int side) {
+  std::mt19937 random(7);
+  std::uniform_real_distribution<double> jitter(-0.15, 0.15);
+  Eigen::Matrix3Xd positions(3, side * side * side);
+  int i = 0;
+  for (int z = 0; z < side; ++z)
+    for (int y = 0; y < side; ++y)
+      for (int x = 0; x < side; ++x, ++i) {
+        const bool face = z == 0 || z == side - 1;
+        positions.col(i) = Eigen::Vector3d(x + jitter(random), y + jitter(random), face ? z : z + jitter(random));
+      }
+  MassSpringSystem system = systemFromParticles(positions, delaunayPairs(positions), 1.0, 10.0);
+  for (Eigen::Index p = 0; p < system.particleCount(); ++p)
+    if (positions(2, p) == 0 || positions(2, p) == side - 1) system.is_fixed[static_cast<std::size_t>(p)] = 1;
+  return system;
+}
+
+// The cube with its top layer pushed down to `height` (the squeeze the pose imposes on the fixed particles).
+ParticleState squeezedCube(const MassSpringSystem& system, int side, double height) {
+  ParticleState state = stateAt(system.rest_position);
+  for (Eigen::Index p = 0; p < system.particleCount(); ++p)
+    state.position(2, p) *= height / (side - 1);
+  state.previous_position = state.position;
+  return state;
+}
+
+LocalGlobalSettings quasiStatic(int max_iterations, double tolerance_m) {
+  LocalGlobalSettings settings;
+  settings.quasi_static = true;
+  settings.max_iterations = max_iterations;
+  settings.displacement_tolerance_m = tolerance_m;
+  return settings;
+}
+
+}  // namespace
+
+TEST(LocalGlobalSolver, ImplicitSolveOfSingleSpringConvergesToRestLength) {
+  Eigen::Matrix3Xd positions(3, 2);
+  positions << 0, 1, 0, 0, 0, 0;
+  const MassSpringSystem system = systemFromParticles(positions, {{0, 1}}, 1.0, 1.0);
+  for (const bool quasi_static : {true, false}) {
+    LocalGlobalSettings settings = quasiStatic(2000, 1e-12);
+    settings.quasi_static = quasi_static;
+    settings.time_step_s = 0.1;
+    settings.damping = 0.2;
+    LocalGlobalSolver solver(system, settings);
+    ParticleState state = stateAt(positions);
+    state.position(0, 1) = 1.5;  // stretched by half its rest length
+    state.previous_position = state.position;
+    const SolveStats stats = solver.solve(state);
+    EXPECT_TRUE(stats.stopping_rule_met) << "quasi_static " << quasi_static;
+    EXPECT_NEAR((state.position.col(1) - state.position.col(0)).norm(), 1.0, 1e-6) << "quasi_static " << quasi_static;
+    // Equal masses, no external force: the centre stays where it was.
+    EXPECT_NEAR(0.5 * (state.position(0, 0) + state.position(0, 1)), 0.75, 1e-6);
+  }
+}
+
+TEST(LocalGlobalSolver, ChainBetweenTwoFixedParticlesReachesUniformStrain) {
+  const int links = 10;
+  const MassSpringSystem system = fixedChain(links);
+  LocalGlobalSolver solver(system, quasiStatic(5000, 1e-13));
+  ParticleState state = stateAt(system.rest_position);
+  state.position(0, links) = 15.0;  // the end pulled from 10 to 15: every link strained by 0.5 at equilibrium
+  state.position(1, 3) = 0.3;       // and a sideways kink the springs must straighten
+  const SolveStats stats = solver.solve(state);
+  EXPECT_TRUE(stats.stopping_rule_met);
+  for (int i = 0; i <= links; ++i) {
+    EXPECT_NEAR(state.position(0, i), 1.5 * i, 1e-6) << "particle " << i;
+    EXPECT_NEAR(state.position(1, i), 0.0, 1e-6) << "particle " << i;
+  }
+  EXPECT_NEAR(stats.mean_strain, 0.5, 1e-6);
+  EXPECT_NEAR(stats.max_strain, 0.5, 1e-6);
+}
+
+TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
+  const int side = 5;
+  const MassSpringSystem system = jitteredCube(side);
+  const double bound = stabilityTimeStep(system);
+  const ParticleState start = squeezedCube(system, side, 3.0);
+  const double start_energy = springEnergy(system, start.position);
+
+  for (const double factor : {10.0, 100.0}) {
+    SolverSettings verlet_settings;
+    verlet_settings.mass_rule = MassRule::uniform;
+    verlet_settings.dt_s = factor * bound;
+    verlet_settings.max_iterations = 200;
+    VerletSolver verlet(system, verlet_settings);
+    ParticleState verlet_state = start;
+    verlet.solve(verlet_state);
+    const bool verlet_blew_up =
+        !verlet_state.position.allFinite() || springEnergy(system, verlet_state.position) > 1e3 * start_energy;
+    EXPECT_TRUE(verlet_blew_up) << "Verlet at " << factor << "x its stability bound";
+
+    LocalGlobalSettings settings;
+    settings.quasi_static = false;
+    settings.time_step_s = factor * bound;
+    settings.max_iterations = 2000;
+    settings.displacement_tolerance_m = 1e-9;
+    LocalGlobalSolver solver(system, settings);
+    ParticleState state = start;
+    // Step by step: the energy must never exceed the start's (implicit Euler only dissipates from rest).
+    double max_energy = 0;
+    const AfterUpdateHook watch = [&](ParticleState& s) {
+      max_energy = std::max(max_energy, springEnergy(system, s.position));
+      return 0;
+    };
+    const SolveStats stats = solver.solve(state, watch);
+    EXPECT_TRUE(state.position.allFinite()) << factor << "x";
+    EXPECT_LE(max_energy, start_energy) << factor << "x";
+    EXPECT_TRUE(stats.stopping_rule_met) << factor << "x: " << stats.iterations << " iterations";
+    EXPECT_LT(springEnergy(system, state.position), start_energy) << factor << "x";
+  }
+}
+
+TEST(LocalGlobalSolver, QuasiStaticAndDynamicModesReachTheSameEquilibrium) {
+  const int side = 4;
+  const MassSpringSystem system = jitteredCube(side);
+  const ParticleState start = squeezedCube(system, side, 2.2);
+  ParticleState quasi_state = start, dynamic_state = start;
+  LocalGlobalSolver quasi(system, quasiStatic(20000, 1e-12));
+  LocalGlobalSettings dynamic_settings = quasiStatic(20000, 1e-12);
+  dynamic_settings.quasi_static = false;
+  dynamic_settings.time_step_s = 0.5;
+  dynamic_settings.damping = 0.3;
+  LocalGlobalSolver dynamic(system, dynamic_settings);
+  EXPECT_TRUE(quasi.solve(quasi_state).stopping_rule_met);
+  EXPECT_TRUE(dynamic.solve(dynamic_state).stopping_rule_met);
+  EXPECT_LT((quasi_state.position - dynamic_state.position).cwiseAbs().maxCoeff(), 1e-4);
+}
+
+TEST(LocalGlobalSolver, VolumeTermKeepsCompressedCubeVolumeWithinFourPercent) {
+  // A 6 x 6 x 6 cube squeezed to 70 % of its height between its fixed bottom and top layers (which cannot spread).
+  // Springs alone lose about a third of the volume (the Delaunay spring network barely bulges); the volume term
+  // (weight 20 relative to the springs, tolerance 0.5 %) must keep the summed tetrahedron volume within 4 % of the
+  // rest volume, and below an eighth of the springs-only error.
+  const int side = 6;
+  const MassSpringSystem system = jitteredCube(side);
+  const ParticleState start = squeezedCube(system, side, 0.7 * (side - 1));
+  const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(system);
+  ASSERT_GT(tetrahedra.tetrahedra.size(), 100u);
+
+  auto volumeError = [&](double weight) {
+    LocalGlobalSettings settings = quasiStatic(3000, 1e-9);
+    settings.volume_weight = weight;
+    settings.volume_tolerance = 0.005;
+    LocalGlobalSolver solver(system, settings);
+    ParticleState state = start;
+    const SolveStats stats = solver.solve(state);
+    EXPECT_TRUE(state.position.allFinite());
+    EXPECT_GT(stats.iterations, 0);
+    return std::abs(muscleVolumeChange(tetrahedra, state.position)[0]);
+  };
+  const double without = volumeError(0.0);
+  const double with = volumeError(20.0);
+  RecordProperty("volume_error_without", std::to_string(without));
+  RecordProperty("volume_error_with", std::to_string(with));
+  EXPECT_GT(without, 0.25);  // the squeeze does cost volume without the term
+  EXPECT_LT(with, 0.04);
+  EXPECT_LT(with, without / 8);
+}
+
+TEST(LocalGlobalSolver, PrefactoredMatrixIsReusedAcrossIterationsAndFrames) {
+  const int side = 4;
+  const MassSpringSystem system = jitteredCube(side);
+  LocalGlobalSettings settings = quasiStatic(50, 1e-9);
+  settings.volume_weight = 1.0;
+  LocalGlobalSolver solver(system, settings);
+  EXPECT_EQ(solver.factorisations(), 1);
+  int total_iterations = 0;
+  for (int frame = 0; frame < 20; ++frame) {
+    // Every frame a different pose of the fixed particles: only the right-hand side changes.
+    ParticleState state = squeezedCube(system, side, 3.0 - 0.05 * frame);
+    total_iterations += solver.solve(state).iterations;
+  }
+  EXPECT_GT(total_iterations, 100);
+  EXPECT_EQ(solver.factorisations(), 1);
+}
+
+TEST(LocalGlobalSolver, FixedParticlesNeverMove) {
+  const int side = 4;
+  const MassSpringSystem system = jitteredCube(side);
+  for (const bool quasi_static : {true, false}) {
+    LocalGlobalSettings settings = quasiStatic(100, 0);
+    settings.quasi_static = quasi_static;
+    settings.volume_weight = 2.0;
+    LocalGlobalSolver solver(system, settings);
+    ParticleState state = squeezedCube(system, side, 2.0);
+    state.position.array() += 0.25;  // the pose moved everything, fixed particles included
+    const Eigen::Matrix3Xd entry = state.position;
+    solver.solve(state);
+    for (Eigen::Index p = 0; p < system.particleCount(); ++p)
+      if (system.is_fixed[static_cast<std::size_t>(p)]) {
+        EXPECT_EQ(state.position.col(p), entry.col(p)) << "particle " << p;
+      }
+  }
+}
+
+TEST(LocalGlobalSolver, CollisionHookIsCalledAfterEveryGlobalStep) {
+  // The hook keeps every particle above the plane z = 1.6 (a stand-in for the sphere projection). It is called once
+  // per global step, and its corrections are kept: the result respects the plane.
+  const int side = 4;
+  const MassSpringSystem system = jitteredCube(side);
+  LocalGlobalSettings settings = quasiStatic(40, 0);
+  settings.stopping_rule = StoppingRule::iterations;
+  LocalGlobalSolver solver(system, settings);
+  ParticleState state = squeezedCube(system, side, 3.0);
+  int calls = 0;
+  const AfterUpdateHook plane = [&](ParticleState& s) {
+    ++calls;
+    int contacts = 0;
+    for (Eigen::Index p = 0; p < s.position.cols(); ++p)
+      if (!system.is_fixed[static_cast<std::size_t>(p)] && s.position(2, p) < 1.6) {
+        s.position(2, p) = 1.6;
+        s.previous_position.col(p) = s.position.col(p);
+        ++contacts;
+      }
+    return contacts;
+  };
+  const SolveStats stats = solver.solve(state, plane);
+  EXPECT_EQ(stats.iterations, 40);
+  EXPECT_EQ(calls, 40);
+  for (Eigen::Index p = 0; p < system.particleCount(); ++p)
+    if (!system.is_fixed[static_cast<std::size_t>(p)]) {
+      EXPECT_GE(state.position(2, p), 1.6);
+    }
+}
+
+TEST(LocalGlobalSolver, ChebyshevAccelerationReachesTheSameShape) {
+  const int side = 5;
+  const MassSpringSystem system = jitteredCube(side);
+  const ParticleState start = squeezedCube(system, side, 3.0);
+  LocalGlobalSettings plain_settings = quasiStatic(5000, 1e-11);
+  LocalGlobalSettings fast_settings = plain_settings;
+  fast_settings.chebyshev_rho = 0.9;
+  ParticleState plain = start, fast = start;
+  LocalGlobalSolver plain_solver(system, plain_settings), fast_solver(system, fast_settings);
+  const SolveStats plain_stats = plain_solver.solve(plain);
+  const SolveStats fast_stats = fast_solver.solve(fast);
+  EXPECT_TRUE(plain_stats.stopping_rule_met);
+  EXPECT_TRUE(fast_stats.stopping_rule_met);
+  EXPECT_LT((plain.position - fast.position).cwiseAbs().maxCoeff(), 1e-5);
+  RecordProperty("plain_iterations", plain_stats.iterations);
+  RecordProperty("chebyshev_iterations", fast_stats.iterations);
+}
+
+TEST(LocalGlobalSolver, InvalidSettingsAreRejected) {
+  const MassSpringSystem system = fixedChain(3);
+  LocalGlobalSettings settings;
+  settings.time_step_s = 0;
+  EXPECT_THROW(LocalGlobalSolver(system, settings), std::invalid_argument);
+  settings = LocalGlobalSettings{};
+  settings.chebyshev_rho = 1.0;
+  EXPECT_THROW(LocalGlobalSolver(system, settings), std::invalid_argument);
+  EXPECT_EQ(solverKindFromString("local_global"), SolverKind::local_global);
+  EXPECT_EQ(toString(SolverKind::verlet), "verlet");
+  EXPECT_THROW(solverKindFromString("euler"), std::invalid_argument);
+}
+
+TEST(LocalGlobalSolver, MuscleSimulationRunsTheChosenSolver) {
+  const SyntheticScene scene = makeSyntheticThigh(2, 3);
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.solver_kind = SolverKind::local_global;
+  settings.local_global.max_iterations = 300;
+  MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+  for (const double hip : {0.2, 0.4}) {
+    const FrameStats stats = simulation.solve(syntheticThighPose(hip, 0.5), StartMode::warm);
+    EXPECT_TRUE(stats.finite);
+    EXPECT_GT(stats.solve.iterations, 0);
+    EXPECT_LT(stats.solve.max_strain, 0.6);  // the Verlet solver leaves up to 0.5 on this coarse model
+  }
+}
