@@ -1,7 +1,7 @@
 # User commands. Each does its own set-up on a fresh Debian 12 machine (missing packages, catkin workspace).
 #   make test   build everything and run every test; non-zero exit on any failure
 #   make bench  build in Release and run the benchmarks; writes docs/BENCHMARKS.md and out/bench/*.json
-#   make demo   run the demo (for now: the core engine on the synthetic thigh scene)
+#   make demo   gait playback through the node, rviz headless under Xvfb; writes out/demo/stats.csv, out/demo/rviz.png
 SHELL := /bin/bash
 ROOT := $(CURDIR)
 WS := $(ROOT)/.ws
@@ -34,7 +34,7 @@ bench: build
 
 demo: build
 	@mkdir -p $(ROOT)/out/demo
-	@$(WS)/devel/lib/muscle_deformation/core_demo --out $(ROOT)/out/demo
+	@source $(WS)/devel/setup.bash && /usr/bin/python3 $(ROOT)/tools/demo_gait.py --out $(ROOT)/out/demo
 
 clean:
 	rm -rf $(WS) $(ROOT)/out

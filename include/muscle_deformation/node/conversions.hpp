@@ -1,0 +1,68 @@
+// The one place where core types meet ROS messages (as grid_map's GridMapRosConverter): free functions, no state.
+#pragma once
+
+#include "muscle_deformation/core/mass_spring_system.hpp"
+#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/surface_skinning.hpp"
+#include "muscle_deformation/node/deformation_pipeline.hpp"
+
+#include <muscle_deformation/DeformationStats.h>
+#include <muscle_deformation/MuscleSurfaces.h>
+
+#include <geometry_msgs/Transform.h>
+#include <sensor_msgs/JointState.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <std_msgs/Header.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include <Eigen/Geometry>
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation::node {
+
+// ----- messages -> core (throw std::invalid_argument with a message naming the bad field) -----
+
+// Joint names -> positions. Rejects mismatched name/position counts, empty or repeated names and non-finite values.
+JointValues jointValuesFromMessage(const sensor_msgs::JointState& joint_state);
+
+// A rigid transform; rejects non-finite values and quaternions far from unit length (|q| outside [0.9, 1.1]).
+// `what` names the field in the error message.
+Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what);
+
+// ----- core -> messages -----
+
+// Per particle: mean |l - l0| / l0 over its springs (0 for a particle without springs).
+Eigen::VectorXf particleStrains(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions);
+
+// Per muscle one LINE_LIST marker (namespace "fibres", id = muscle index) joining consecutive particles of each
+// fibre. Colour: the muscle's scene colour, or, with `colour_by_strain`, each segment from blue (shortened by 20 %
+// or more) through white (rest length) to red (stretched by 20 % or more).
+visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
+                                                const std::vector<MuscleDescription>& muscles,
+                                                const std_msgs::Header& header, bool colour_by_strain);
+
+// PointCloud2 built with PCL, one point per particle: x y z (float32, m), radius (float32, m, collision sphere, 0 for
+// interior particles), strain (float32, see particleStrains), muscle (int32, muscle index), bone (int32: the bone a
+// fixed particle is attached to, -1 for free particles).
+sensor_msgs::PointCloud2 particlesToCloud(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
+                                          const std_msgs::Header& header);
+
+// Deformed surfaces, per muscle its name, colour and shape_msgs/Mesh.
+muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skinning,
+                                                     const std::vector<Vertices>& surfaces,
+                                                     const std::vector<MuscleDescription>& muscles,
+                                                     const std_msgs::Header& header);
+
+// The same surfaces as TRIANGLE_LIST markers (namespace "surfaces", id = muscle index) for rviz.
+visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinning, const std::vector<Vertices>& surfaces,
+                                                  const std::vector<MuscleDescription>& muscles,
+                                                  const std_msgs::Header& header, float alpha);
+
+// Per-frame statistics (the running counters are left at 0 for the caller to fill).
+muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const SolverSettings& solver,
+                                                    const std_msgs::Header& header);
+
+}  // namespace muscle_deformation::node

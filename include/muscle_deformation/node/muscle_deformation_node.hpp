@@ -1,0 +1,114 @@
+// The roscpp node: skeleton poses from tf in, deformed fibres, particles, surfaces and statistics out, plus the
+// ~deform_pose service. Parameters in config/muscle_deformation.yaml, topics in the README.
+//
+// Threads: roscpp callbacks (joint_states, the service, diagnostics) run on the spinner threads; the streaming solve
+// runs on a worker thread of its own that always takes the newest pending pose, so a slow solve never builds a
+// backlog. The service solves on its own DeformationPipeline and never touches the streaming one.
+#pragma once
+
+#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/node/deformation_pipeline.hpp"
+#include "muscle_deformation/node/parameters.hpp"
+
+#include <muscle_deformation/DeformPose.h>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <ros/ros.h>
+#include <sensor_msgs/JointState.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <condition_variable>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace muscle_deformation::node {
+
+class MuscleDeformationNode {
+ public:
+  // Reads the parameters, robot_description and the scene, builds the model and starts the worker. Throws
+  // std::runtime_error with a message naming the missing or broken input.
+  MuscleDeformationNode(const ros::NodeHandle& node, const ros::NodeHandle& private_node);
+  ~MuscleDeformationNode();
+  MuscleDeformationNode(const MuscleDeformationNode&) = delete;
+  MuscleDeformationNode& operator=(const MuscleDeformationNode&) = delete;
+
+ private:
+  struct Counters {
+    std::uint32_t received = 0, solved = 0, dropped = 0, unchanged = 0, tf_failures = 0, resets = 0,
+                  non_finite = 0;
+  };
+  struct LinkPoses {
+    ros::Time stamp;
+    std::map<std::string, Eigen::Isometry3d> poses;  // bone links in the fixed frame
+  };
+
+  // Streaming
+  void onJointStates(const sensor_msgs::JointState::ConstPtr& message);
+  void workerLoop();
+  // Waits (wall time, up to tf_wait_s) until every bone's transform at `stamp` is available. Returns false, with
+  // `error` set, on a tf failure; returns false with an empty error when a newer pose arrived meanwhile.
+  bool lookupBones(const ros::Time& stamp, LinkPoses& out, std::string& error);
+  void solveStreamFrame(const LinkPoses& link_poses);
+  bool anyOutputWanted() const;
+
+  // Service
+  bool onDeformPose(muscle_deformation::DeformPose::Request& request, muscle_deformation::DeformPose::Response& response);
+  // Throws std::invalid_argument (bad request) or a core error; fills the response on success.
+  void deformPose(const muscle_deformation::DeformPose::Request& request,
+                  muscle_deformation::DeformPose::Response& response);
+  std::map<std::string, Eigen::Isometry3d> linkPosesFromRequest(const muscle_deformation::DeformPose::Request& request,
+                                                                std::string& frame_id) const;
+
+  // Diagnostics
+  void diagnoseOutputRate(diagnostic_updater::DiagnosticStatusWrapper& status);
+  void diagnoseSolveTime(diagnostic_updater::DiagnosticStatusWrapper& status);
+  void diagnosePoses(diagnostic_updater::DiagnosticStatusWrapper& status);
+
+  ros::NodeHandle node_, private_node_;
+  NodeSettings settings_;
+  SceneDescription scene_description_;
+  Scene scene_;
+  std::vector<Eigen::Vector3d> bone_centres_;  // rest centroid of each bone (for the pose-jump measure)
+  std::unique_ptr<DeformationPipeline> stream_;
+
+  std::mutex service_mutex_;
+  std::unique_ptr<DeformationPipeline> service_pipeline_;
+  std::string service_pipeline_key_;
+
+  tf2_ros::Buffer tf_buffer_;
+  tf2_ros::TransformListener tf_listener_;
+  ros::Publisher fibres_pub_, particles_pub_, surfaces_pub_, surface_markers_pub_, stats_pub_;
+  ros::Subscriber joint_states_sub_;
+  ros::ServiceServer deform_pose_srv_;
+  diagnostic_updater::Updater diagnostics_;
+  ros::WallTimer diagnostics_timer_;
+
+  // Newest pending pose (guarded by pending_mutex_).
+  std::mutex pending_mutex_;
+  std::condition_variable pending_changed_;
+  std::optional<ros::Time> pending_;
+  bool stopping_ = false;
+
+  // Counters and the solve times since the last diagnostics update (guarded by counters_mutex_).
+  mutable std::mutex counters_mutex_;
+  Counters counters_;
+  std::vector<double> window_solve_ms_;
+  std::uint32_t window_solved_ = 0, window_dropped_ = 0, window_tf_failures_ = 0, window_received_ = 0;
+  ros::WallTime window_start_;
+  std::string last_tf_error_;
+
+  // Worker-only state of the stream.
+  bool has_previous_ = false;
+  ros::Time previous_stamp_;
+  BoneTransforms previous_transforms_;
+
+  std::thread worker_;
+};
+
+}  // namespace muscle_deformation::node

@@ -1,0 +1,44 @@
+// The node's private parameters (documented with units in config/muscle_deformation.yaml) read into plain settings.
+#pragma once
+
+#include "muscle_deformation/node/deformation_pipeline.hpp"
+
+#include <ros/node_handle.h>
+
+#include <string>
+#include <vector>
+
+namespace muscle_deformation::node {
+
+struct StreamSettings {
+  bool warm_start = true;                 // start each frame from the previous result
+  double tf_wait_s = 0.2;                 // wall time to wait for a pose's transforms before counting a tf failure
+  double reset_translation_m = 0.05;      // a bone moving further than this between two frames forces a cold start
+  double reset_rotation_rad = 0.5;        // same for rotation
+  double unchanged_translation_m = 1e-7;  // no bone moved more than this (and unchanged_rotation_rad): skip the solve
+  double unchanged_rotation_rad = 1e-7;
+  bool colour_fibres_by_strain = false;
+  float surface_alpha = 0.8f;             // opacity of ~surface_markers
+  bool stats_metrics = true;              // measure surface fidelity for ~stats (costs a few ms per frame)
+  double expected_rate_hz = 60.0;         // diagnostics: expected output rate
+};
+
+struct NodeSettings {
+  std::string package_root;              // of muscle_deformation
+  std::string scene_path;                // ~scene
+  std::vector<std::string> muscles;      // ~muscles: names or tags, empty = all
+  std::string fixed_frame = "pelvis";    // ~fixed_frame
+  PipelineSettings pipeline;
+  StreamSettings stream;
+};
+
+// Throws std::invalid_argument naming the parameter and what is wrong.
+NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
+
+// Parses the names used in the YAML; throw std::invalid_argument listing the accepted names.
+TimeStepRule timeStepRuleFromString(const std::string& name);
+StoppingRule stoppingRuleFromString(const std::string& name);
+MassRule massRuleFromString(const std::string& name);
+BroadPhaseKind broadPhaseFromString(const std::string& name);
+
+}  // namespace muscle_deformation::node

@@ -1,0 +1,268 @@
+#include "muscle_deformation/node/conversions.hpp"
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/register_point_struct.h>
+#include <pcl_conversions/pcl_conversions.h>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+// A particle as a PCL point: position plus the fields rviz can colour by.
+namespace muscle_deformation::node {
+struct EIGEN_ALIGN16 ParticlePoint {
+  PCL_ADD_POINT4D;
+  float radius;
+  float strain;
+  std::int32_t muscle;
+  std::int32_t bone;
+  PCL_MAKE_ALIGNED_OPERATOR_NEW
+};
+}  // namespace muscle_deformation::node
+
+POINT_CLOUD_REGISTER_POINT_STRUCT(muscle_deformation::node::ParticlePoint,
+                                  (float, x, x)(float, y, y)(float, z, z)(float, radius, radius)(float, strain, strain)
+                                  (std::int32_t, muscle, muscle)(std::int32_t, bone, bone))
+
+namespace muscle_deformation::node {
+namespace {
+
+std_msgs::ColorRGBA colourOf(const MuscleDescription& muscle, float alpha) {
+  std_msgs::ColorRGBA colour;
+  colour.r = muscle.colour[0];
+  colour.g = muscle.colour[1];
+  colour.b = muscle.colour[2];
+  colour.a = alpha < 0 ? muscle.colour[3] : alpha;
+  return colour;
+}
+
+// Blue (-20 % and below) -> white (0) -> red (+20 % and above).
+std_msgs::ColorRGBA strainColour(double strain) {
+  const float t = static_cast<float>(std::clamp(strain / 0.2, -1.0, 1.0));
+  std_msgs::ColorRGBA colour;
+  colour.a = 1.0f;
+  colour.r = t >= 0 ? 1.0f : 1.0f + t;
+  colour.g = 1.0f - std::abs(t);
+  colour.b = t <= 0 ? 1.0f : 1.0f - t;
+  return colour;
+}
+
+geometry_msgs::Point pointOf(const Eigen::Vector3d& p) {
+  geometry_msgs::Point point;
+  point.x = p.x();
+  point.y = p.y();
+  point.z = p.z();
+  return point;
+}
+
+visualization_msgs::Marker baseMarker(const std_msgs::Header& header, const std::string& ns, int id, int type) {
+  visualization_msgs::Marker marker;
+  marker.header = header;
+  marker.ns = ns;
+  marker.id = id;
+  marker.type = type;
+  marker.action = visualization_msgs::Marker::ADD;
+  marker.pose.orientation.w = 1.0;
+  marker.scale.x = marker.scale.y = marker.scale.z = 1.0;
+  return marker;
+}
+
+}  // namespace
+
+JointValues jointValuesFromMessage(const sensor_msgs::JointState& joint_state) {
+  if (joint_state.position.size() != joint_state.name.size()) {
+    throw std::invalid_argument("joint_state has " + std::to_string(joint_state.name.size()) + " names but " +
+                                std::to_string(joint_state.position.size()) + " positions");
+  }
+  JointValues values;
+  for (std::size_t i = 0; i < joint_state.name.size(); ++i) {
+    const std::string& name = joint_state.name[i];
+    if (name.empty()) throw std::invalid_argument("joint_state.name[" + std::to_string(i) + "] is empty");
+    if (!std::isfinite(joint_state.position[i])) {
+      throw std::invalid_argument("joint '" + name + "' has a non-finite position (" +
+                                  std::to_string(joint_state.position[i]) + ")");
+    }
+    if (!values.emplace(name, joint_state.position[i]).second)
+      throw std::invalid_argument("joint '" + name + "' is given twice");
+  }
+  return values;
+}
+
+Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what) {
+  const Eigen::Vector3d translation(transform.translation.x, transform.translation.y, transform.translation.z);
+  const Eigen::Quaterniond rotation(transform.rotation.w, transform.rotation.x, transform.rotation.y,
+                                    transform.rotation.z);
+  if (!translation.allFinite() || !rotation.coeffs().allFinite())
+    throw std::invalid_argument(what + " has a non-finite value");
+  const double norm = rotation.norm();
+  if (norm < 0.9 || norm > 1.1) {
+    throw std::invalid_argument(what + " has a rotation quaternion of length " + std::to_string(norm) +
+                                " (expected a unit quaternion)");
+  }
+  Eigen::Isometry3d result = Eigen::Isometry3d::Identity();
+  result.linear() = rotation.normalized().toRotationMatrix();
+  result.translation() = translation;
+  return result;
+}
+
+Eigen::VectorXf particleStrains(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions) {
+  const Eigen::Index n = system.particleCount();
+  Eigen::VectorXd sum = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXi count = Eigen::VectorXi::Zero(n);
+  const SpringSet& springs = system.springs;
+  for (std::size_t s = 0; s < springs.size(); ++s) {
+    const std::int32_t a = springs.first[s], b = springs.second[s];
+    const double rest = springs.rest_length[static_cast<Eigen::Index>(s)];
+    const double strain = rest > 0 ? std::abs((positions.col(a) - positions.col(b)).norm() - rest) / rest : 0.0;
+    sum[a] += strain;
+    sum[b] += strain;
+    ++count[a];
+    ++count[b];
+  }
+  Eigen::VectorXf strain(n);
+  for (Eigen::Index i = 0; i < n; ++i) strain[i] = count[i] ? static_cast<float>(sum[i] / count[i]) : 0.0f;
+  return strain;
+}
+
+visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
+                                                const std::vector<MuscleDescription>& muscles,
+                                                const std_msgs::Header& header, bool colour_by_strain) {
+  visualization_msgs::MarkerArray array;
+  const int muscle_count = system.muscleCount();
+  array.markers.reserve(static_cast<std::size_t>(muscle_count));
+  for (int m = 0; m < muscle_count; ++m) {
+    visualization_msgs::Marker marker = baseMarker(header, "fibres", m, visualization_msgs::Marker::LINE_LIST);
+    marker.scale.x = 0.0015;  // line width, m
+    marker.color = colourOf(muscles[static_cast<std::size_t>(m)], -1);
+    const std::int32_t begin = system.muscle_begin[static_cast<std::size_t>(m)];
+    const std::int32_t end = system.muscle_begin[static_cast<std::size_t>(m) + 1];
+    for (std::int32_t i = begin; i + 1 < end; ++i) {
+      const auto next = static_cast<std::size_t>(i) + 1;
+      if (system.fibre_of[next] != system.fibre_of[static_cast<std::size_t>(i)]) continue;  // next fibre starts
+      marker.points.push_back(pointOf(positions.col(i)));
+      marker.points.push_back(pointOf(positions.col(i + 1)));
+      if (colour_by_strain) {
+        const double rest = (system.rest_position.col(i + 1) - system.rest_position.col(i)).norm();
+        const double now = (positions.col(i + 1) - positions.col(i)).norm();
+        const std_msgs::ColorRGBA colour = strainColour(rest > 0 ? now / rest - 1.0 : 0.0);
+        marker.colors.push_back(colour);
+        marker.colors.push_back(colour);
+      }
+    }
+    array.markers.push_back(std::move(marker));
+  }
+  return array;
+}
+
+sensor_msgs::PointCloud2 particlesToCloud(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
+                                          const std_msgs::Header& header) {
+  const Eigen::VectorXf strain = particleStrains(system, positions);
+  pcl::PointCloud<ParticlePoint> cloud;
+  cloud.resize(static_cast<std::size_t>(system.particleCount()));
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    ParticlePoint& point = cloud[k];
+    point.x = static_cast<float>(positions(0, i));
+    point.y = static_cast<float>(positions(1, i));
+    point.z = static_cast<float>(positions(2, i));
+    point.radius = static_cast<float>(system.radius[i]);
+    point.strain = strain[i];
+    point.muscle = system.muscle_of[k];
+    point.bone = system.is_fixed[k] ? system.fixed_bone[k] : -1;
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  cloud.height = 1;
+  cloud.is_dense = positions.allFinite();
+  sensor_msgs::PointCloud2 message;
+  pcl::toROSMsg(cloud, message);
+  message.header = header;
+  return message;
+}
+
+muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skinning,
+                                                     const std::vector<Vertices>& surfaces,
+                                                     const std::vector<MuscleDescription>& muscles,
+                                                     const std_msgs::Header& header) {
+  muscle_deformation::MuscleSurfaces message;
+  message.header = header;
+  const std::vector<MuscleSkin>& skins = skinning.muscles();
+  message.muscles.resize(skins.size());
+  for (std::size_t m = 0; m < skins.size(); ++m) {
+    muscle_deformation::MuscleSurface& out = message.muscles[m];
+    out.name = muscles[m].name;
+    out.color = colourOf(muscles[m], -1);
+    const Vertices& vertices = surfaces[m];
+    out.mesh.vertices.resize(static_cast<std::size_t>(vertices.cols()));
+    for (Eigen::Index v = 0; v < vertices.cols(); ++v)
+      out.mesh.vertices[static_cast<std::size_t>(v)] = pointOf(vertices.col(v));
+    const Triangles& triangles = skins[m].triangles();
+    out.mesh.triangles.resize(static_cast<std::size_t>(triangles.cols()));
+    for (Eigen::Index t = 0; t < triangles.cols(); ++t) {
+      for (int c = 0; c < 3; ++c)
+        out.mesh.triangles[static_cast<std::size_t>(t)].vertex_indices[static_cast<std::size_t>(c)] =
+            static_cast<std::uint32_t>(triangles(c, t));
+    }
+  }
+  return message;
+}
+
+visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinning, const std::vector<Vertices>& surfaces,
+                                                  const std::vector<MuscleDescription>& muscles,
+                                                  const std_msgs::Header& header, float alpha) {
+  visualization_msgs::MarkerArray array;
+  const std::vector<MuscleSkin>& skins = skinning.muscles();
+  for (std::size_t m = 0; m < skins.size(); ++m) {
+    visualization_msgs::Marker marker =
+        baseMarker(header, "surfaces", static_cast<int>(m), visualization_msgs::Marker::TRIANGLE_LIST);
+    marker.color = colourOf(muscles[m], alpha);
+    const Triangles& triangles = skins[m].triangles();
+    marker.points.reserve(static_cast<std::size_t>(triangles.size()));
+    for (Eigen::Index t = 0; t < triangles.cols(); ++t)
+      for (int c = 0; c < 3; ++c) marker.points.push_back(pointOf(surfaces[m].col(triangles(c, t))));
+    array.markers.push_back(std::move(marker));
+  }
+  return array;
+}
+
+muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const SolverSettings& solver,
+                                                    const std_msgs::Header& header) {
+  muscle_deformation::DeformationStats stats;
+  stats.header = header;
+  const SolveStats& solve = frame.solve.solve;
+  stats.iterations = solve.iterations;
+  stats.converged = solver.stopping_rule == StoppingRule::iterations || solve.stopping_rule_met;
+  stats.warm_started = frame.solve.warm_started;
+  stats.finite = frame.solve.finite;
+  stats.mss_ms = solve.mss_ms;
+  stats.collision_ms = solve.collision_ms;
+  stats.skinning_ms = frame.skinning_ms;
+  stats.metrics_ms = frame.metrics_ms;
+  stats.solve_ms = solve.total_ms;
+  stats.total_ms = solve.total_ms + frame.skinning_ms + frame.metrics_ms;
+  stats.spring_deviation_ratio = solve.spring_deviation_ratio;
+  stats.mean_strain = solve.mean_strain;
+  stats.max_strain = solve.max_strain;
+  const CollisionStats& collision = frame.solve.collision;
+  stats.contacts = collision.contacts;
+  stats.max_penetration_sphere_bone_m = collision.max_penetration_muscle_bone_m;
+  stats.max_penetration_sphere_muscle_m = collision.max_penetration_muscle_muscle_m;
+  stats.has_surface_metrics = frame.has_metrics;
+  if (frame.has_metrics) {
+    const SceneMetrics& metrics = frame.metrics;
+    stats.volume_error_mean_pct = metrics.volume_error_mean_pct;
+    stats.volume_error_max_pct = metrics.volume_error_max_pct;
+    double worst = -1;
+    for (const MuscleMetrics& m : metrics.muscles) {
+      if (std::abs(m.volume_error_pct) > worst) {
+        worst = std::abs(m.volume_error_pct);
+        stats.volume_error_max_muscle = m.name;
+      }
+    }
+    stats.surface_vertices_inside_bone = metrics.vertices_inside_bone;
+    stats.max_surface_inside_bone_m = metrics.max_inside_bone_depth_m;
+  }
+  return stats;
+}
+
+}  // namespace muscle_deformation::node

@@ -1,0 +1,155 @@
+#include "muscle_deformation/node/parameters.hpp"
+
+#include <filesystem>
+#include <stdexcept>
+
+namespace muscle_deformation::node {
+namespace {
+
+class ParameterReader {
+ public:
+  explicit ParameterReader(const ros::NodeHandle& node) : node_(node) {}
+
+  template <typename T>
+  void read(const std::string& name, T& value) const {
+    if (!node_.hasParam(name)) return;  // keep the default
+    T read_value{};
+    if (!node_.getParam(name, read_value)) fail(name, "has the wrong type");
+    value = read_value;
+  }
+  void readDouble(const std::string& name, double& value, double min, double max) const {
+    if (!node_.hasParam(name)) return;
+    double read_value = 0;
+    int int_value = 0;
+    if (node_.getParam(name, read_value)) {
+    } else if (node_.getParam(name, int_value)) {
+      read_value = int_value;
+    } else {
+      fail(name, "must be a number");
+    }
+    if (!(read_value >= min && read_value <= max))
+      fail(name, "is " + std::to_string(read_value) + ", must be in [" + std::to_string(min) + ", " +
+                     std::to_string(max) + "]");
+    value = read_value;
+  }
+  void readInt(const std::string& name, int& value, int min, int max) const {
+    if (!node_.hasParam(name)) return;
+    int read_value = 0;
+    if (!node_.getParam(name, read_value)) fail(name, "must be an integer");
+    if (read_value < min || read_value > max)
+      fail(name, "is " + std::to_string(read_value) + ", must be in [" + std::to_string(min) + ", " +
+                     std::to_string(max) + "]");
+    value = read_value;
+  }
+  template <typename Enum, typename Parse>
+  void readEnum(const std::string& name, Enum& value, Parse parse) const {
+    if (!node_.hasParam(name)) return;
+    std::string text;
+    if (!node_.getParam(name, text)) fail(name, "must be a string");
+    try {
+      value = parse(text);
+    } catch (const std::invalid_argument& e) {
+      fail(name, e.what());
+    }
+  }
+  [[noreturn]] void fail(const std::string& name, const std::string& problem) const {
+    throw std::invalid_argument("parameter " + node_.resolveName(name) + " " + problem);
+  }
+
+ private:
+  const ros::NodeHandle& node_;
+};
+
+template <typename Enum>
+Enum parseNamed(const std::string& name, std::initializer_list<std::pair<const char*, Enum>> options) {
+  std::string accepted;
+  for (const auto& [text, value] : options) {
+    if (name == text) return value;
+    accepted += (accepted.empty() ? "" : ", ") + std::string(text);
+  }
+  throw std::invalid_argument("'" + name + "' is not one of: " + accepted);
+}
+
+}  // namespace
+
+TimeStepRule timeStepRuleFromString(const std::string& name) {
+  return parseNamed<TimeStepRule>(name, {{"fixed", TimeStepRule::fixed}, {"adaptive", TimeStepRule::adaptive}});
+}
+StoppingRule stoppingRuleFromString(const std::string& name) {
+  return parseNamed<StoppingRule>(name, {{"iterations", StoppingRule::iterations},
+                                         {"displacement", StoppingRule::displacement},
+                                         {"time_budget", StoppingRule::time_budget}});
+}
+MassRule massRuleFromString(const std::string& name) {
+  return parseNamed<MassRule>(name, {{"uniform", MassRule::uniform}, {"stiffness_scaled", MassRule::stiffness_scaled}});
+}
+BroadPhaseKind broadPhaseFromString(const std::string& name) {
+  return parseNamed<BroadPhaseKind>(name, {{"octree", BroadPhaseKind::octree}, {"hash_grid", BroadPhaseKind::hash_grid}});
+}
+
+NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root) {
+  NodeSettings settings;
+  settings.package_root = package_root;
+  settings.scene_path = (std::filesystem::path(package_root) / "config/scenes/right_hip_thigh.yaml").string();
+  const ParameterReader p(private_node);
+
+  p.read("scene", settings.scene_path);
+  if (private_node.hasParam("muscles")) {
+    std::string single;
+    if (private_node.getParam("muscles", single)) {
+      if (!single.empty()) settings.muscles = {single};
+    } else if (!private_node.getParam("muscles", settings.muscles)) {
+      p.fail("muscles", "must be a list of muscle names or tags");
+    }
+  }
+  p.read("fixed_frame", settings.fixed_frame);
+  if (settings.fixed_frame.empty()) p.fail("fixed_frame", "must not be empty");
+
+  ModelSettings& model = settings.pipeline.simulation.model;
+  p.readInt("particles_per_fibre", model.particles_per_fibre, 2, 10000);
+  p.readEnum("spring_layout", model.spring_layout, springLayoutFromString);
+  p.readInt("nearest_neighbours", model.nearest_neighbours, 1, 1000);
+  p.readDouble("attachment_distance_m", model.attachment_distance_m, 0.0, 1.0);
+  p.read("fix_fibre_ends", model.fix_fibre_ends);
+  p.readDouble("spring_material_n", model.spring_material_n, 1e-9, 1e9);
+  p.readDouble("density_kg_per_m3", model.density_kg_per_m3, 1e-6, 1e6);
+
+  SolverSettings& solver = settings.pipeline.simulation.solver;
+  p.readEnum("mass_rule", solver.mass_rule, massRuleFromString);
+  p.readEnum("dt_rule", solver.dt_rule, timeStepRuleFromString);
+  p.readDouble("dt_s", solver.dt_s, 0.0, 10.0);
+  p.readDouble("dt_min_s", solver.dt_min_s, 0.0, 10.0);
+  p.readDouble("damping_scale", solver.damping_scale, 0.0, 1e6);
+  p.readEnum("stopping_rule", solver.stopping_rule, stoppingRuleFromString);
+  p.readInt("max_iterations", solver.max_iterations, 1, 1000000);
+  p.readDouble("displacement_tolerance_m", solver.displacement_tolerance_m, 0.0, 1.0);
+  p.readDouble("time_budget_ms", solver.time_budget_ms, 0.0, 1e6);
+
+  SimulationSettings& simulation = settings.pipeline.simulation;
+  p.read("collisions", simulation.collisions);
+  p.readEnum("broad_phase", simulation.collision.broad_phase, broadPhaseFromString);
+  p.readDouble("bone_reach_margin_m", simulation.collision.bone_reach_margin_m, 0.0, 10.0);
+
+  p.read("surfaces", settings.pipeline.skin_surfaces);
+  p.read("surface_metrics", settings.pipeline.measure_fidelity);
+  p.readEnum("skinning_method", settings.pipeline.skinning.method, skinningMethodFromString);
+  p.readInt("skinning_nearest_particles", settings.pipeline.skinning.nearest_particles, 1, 1000);
+  p.readEnum("skinning_cage", settings.pipeline.skinning.cage, cageKindFromString);
+
+  StreamSettings& stream = settings.stream;
+  p.read("warm_start", stream.warm_start);
+  p.readDouble("tf_wait_s", stream.tf_wait_s, 0.0, 60.0);
+  p.readDouble("reset_translation_m", stream.reset_translation_m, 0.0, 1e6);
+  p.readDouble("reset_rotation_rad", stream.reset_rotation_rad, 0.0, 7.0);
+  p.readDouble("unchanged_translation_m", stream.unchanged_translation_m, 0.0, 1.0);
+  p.readDouble("unchanged_rotation_rad", stream.unchanged_rotation_rad, 0.0, 1.0);
+  p.read("colour_fibres_by_strain", stream.colour_fibres_by_strain);
+  double alpha = stream.surface_alpha;
+  p.readDouble("surface_alpha", alpha, 0.0, 1.0);
+  stream.surface_alpha = static_cast<float>(alpha);
+  p.read("stats_metrics", stream.stats_metrics);
+  p.readDouble("expected_rate_hz", stream.expected_rate_hz, 0.0, 1e6);
+  return settings;
+}
+
+}  // namespace muscle_deformation::node
