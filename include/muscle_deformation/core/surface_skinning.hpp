@@ -44,7 +44,7 @@ std::string toString(CageKind kind);
 CageKind cageKindFromString(const std::string& name);  // throws std::invalid_argument
 
 struct SkinningSettings {
-  SkinningMethod method = SkinningMethod::mean_value;  // chosen by measurement, see docs/surface_skinning.md
+  SkinningMethod method = SkinningMethod::nearest_average;  // chosen by measurement, see docs/surface_skinning.md
   int nearest_particles = 8;                           // nearest_average: N (thesis tried 3 and 8)
   CageKind cage = CageKind::convex_hull;               // mean_value; measured better than fibre_tube (docs)
   int embedded_candidate_particles = 8;                // embedded: tetrahedra around this many nearest particles
