@@ -371,7 +371,7 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;
   double omega = 1.0;
   int step_iteration = 0;  // iterations since the start of the current time step (Chebyshev restarts with it)
-  double previous_displacement = std::numeric_limits<double>::infinity();
+  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
 
   for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
     const auto mss_start = Clock::now();
@@ -425,14 +425,7 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
     }
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
-    const bool settling = iteration > 0 && stats.mean_displacement_m <= previous_displacement;
-    previous_displacement = stats.mean_displacement_m;
-    if (settings_.stopping_rule == StoppingRule::displacement && settling &&
-        stats.mean_displacement_m < settings_.displacement_tolerance_m) {
-      stats.stopping_rule_met = true;
-      break;
-    }
-    if (settings_.stopping_rule == StoppingRule::time_budget && millisecondsSince(solve_start) >= settings_.time_budget_ms) {
+    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
       stats.stopping_rule_met = true;
       break;
     }

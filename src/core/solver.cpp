@@ -234,7 +234,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
   stats.min_dt_s = std::numeric_limits<double>::infinity();
   const auto solve_start = Clock::now();
   const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
-  double previous_displacement = std::numeric_limits<double>::infinity();
+  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
 
   for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
     const auto mss_start = Clock::now();
@@ -254,16 +254,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
     stats.max_dt_s = std::max(stats.max_dt_s, dt);
     stats.mean_displacement_m = displacement / free_count;
 
-    // A solve that starts at rest moves little in its first iterations and speeds up; only a small displacement that
-    // is no longer growing means the particles have settled.
-    const bool settling = iteration > 0 && stats.mean_displacement_m <= previous_displacement;
-    previous_displacement = stats.mean_displacement_m;
-    if (settings_.stopping_rule == StoppingRule::displacement && settling &&
-        stats.mean_displacement_m < settings_.displacement_tolerance_m) {
-      stats.stopping_rule_met = true;
-      break;
-    }
-    if (settings_.stopping_rule == StoppingRule::time_budget && millisecondsSince(solve_start) >= settings_.time_budget_ms) {
+    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
       stats.stopping_rule_met = true;
       break;
     }

@@ -5,7 +5,7 @@
 #include "muscle_deformation/core/model_builder.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
-#include "test_meshes.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 

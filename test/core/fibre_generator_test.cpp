@@ -4,6 +4,8 @@
 #include "muscle_deformation/core/mesh_io.hpp"
 #include "muscle_deformation/core/scene.hpp"
 
+#include "test_helpers.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -100,22 +102,7 @@ md::TriangleMesh box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   return mesh;
 }
 
-template <typename Call>
-std::string fibreErrorOf(Call&& call) {
-  try {
-    call();
-  } catch (const md::FibreGenerationError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    ADD_FAILURE() << "threw something other than FibreGenerationError: " << e.what();
-    return "";
-  }
-  ADD_FAILURE() << "did not throw";
-  return "";
-}
 
-#define EXPECT_CONTAINS(text, part) \
-  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
 
 }  // namespace
 
@@ -230,28 +217,28 @@ TEST(FibreGenerator, BadInputsGiveClearErrors) {
 
   md::TriangleMesh open = mesh;
   open.triangles.conservativeResize(3, open.triangles.cols() - 1);
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(open, nullptr, nullptr, options); }), "closed");
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(md::TriangleMesh{}, nullptr, nullptr, options); }), "empty");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(open, nullptr, nullptr, options); }), "closed");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(md::TriangleMesh{}, nullptr, nullptr, options); }), "empty");
 
   options.fibre_count = 0;
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "at least 1");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "at least 1");
   options = smallOptions();
   options.voxel_size = -1;
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "voxel size");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "voxel size");
   options = smallOptions();
   options.voxel_size = 1e-5;  // a 2000 x 2000 x 9000 grid
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "larger voxel");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, nullptr, nullptr, options); }), "larger voxel");
 
   options = smallOptions();
   md::AttachmentPatches patches = capPatches(mesh);
   patches.insertion_vertices.push_back(patches.origin_vertices.front());
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, patches, options); }), "overlap");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, patches, options); }), "overlap");
   patches = capPatches(mesh);
   patches.origin_vertices.clear();
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, patches, options); }), "at least one surface vertex");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, patches, options); }), "at least one surface vertex");
   patches = capPatches(mesh);
   patches.origin_vertices.push_back(100000);
-  EXPECT_CONTAINS(fibreErrorOf([&] { md::generateFibres(mesh, patches, options); }), "out of range");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::FibreGenerationError>([&] { md::generateFibres(mesh, patches, options); }), "out of range");
 }
 
 TEST(FibreGenerator, ChecksCatchFibresOutsideOffThePatchesAndTouching) {

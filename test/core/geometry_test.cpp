@@ -1,7 +1,7 @@
 // Specifications of the basic mesh geometry: bounds, topology checks, volume, normals, closest points.
 #include "muscle_deformation/core/geometry.hpp"
 
-#include "test_meshes.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 

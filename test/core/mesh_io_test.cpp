@@ -1,6 +1,8 @@
 // Specifications of the mesh and polyline loaders: what they read, and how they refuse what they cannot.
 #include "muscle_deformation/core/mesh_io.hpp"
 
+#include "test_helpers.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -21,23 +23,7 @@ std::string data(const std::string& name) { return std::string(MD_TEST_DATA_DIR)
 
 const char* const kFemur = "/work/shared/data/raw/opensim/Geometry/femur_r.vtp";
 
-// The LoadError message of `load`, or a test failure if it does not throw one.
-template <typename Load>
-std::string loadErrorOf(Load&& load) {
-  try {
-    load();
-  } catch (const md::LoadError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    ADD_FAILURE() << "threw something other than LoadError: " << e.what();
-    return "";
-  }
-  ADD_FAILURE() << "did not throw";
-  return "";
-}
 
-#define EXPECT_CONTAINS(text, part) \
-  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
 
 // Unit cube [0,1]^3 as written in the cube_* files, whatever the triangulation.
 void expectUnitCube(const md::TriangleMesh& mesh) {
@@ -86,7 +72,7 @@ TEST(LoadStl, BinaryStartingWithSolidIsReadAsBinary) {
 }
 
 TEST(LoadStl, TruncatedBinaryNamesDeclaredAndActualSize) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("truncated_binary.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("truncated_binary.stl")); });
   EXPECT_CONTAINS(msg, "truncated_binary.stl");
   EXPECT_CONTAINS(msg, "declares 4 triangles");
   EXPECT_CONTAINS(msg, "284 bytes");
@@ -94,24 +80,24 @@ TEST(LoadStl, TruncatedBinaryNamesDeclaredAndActualSize) {
 }
 
 TEST(LoadStl, EmptyFileIsAnError) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("empty.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("empty.stl")); });
   EXPECT_CONTAINS(msg, "empty.stl: file is empty");
 }
 
 TEST(LoadStl, SolidWithoutFacetsHasZeroTrianglesError) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("no_facets.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("no_facets.stl")); });
   EXPECT_CONTAINS(msg, "no_facets.stl");
   EXPECT_CONTAINS(msg, "no triangles");
 }
 
 TEST(LoadStl, NanCoordinateInBinaryIsRejected) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("nan_binary.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("nan_binary.stl")); });
   EXPECT_CONTAINS(msg, "nan_binary.stl byte offset");
   EXPECT_CONTAINS(msg, "triangle 2 has a NaN or infinite vertex coordinate");
 }
 
 TEST(LoadStl, AsciiVertexWithTwoCoordinatesNamesLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_vertex.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("bad_vertex.stl")); });
   EXPECT_CONTAINS(msg, "bad_vertex.stl line 5: expected 3 coordinates per vertex, found 2");
 }
 
@@ -136,22 +122,22 @@ TEST(LoadObj, EveryFaceIndexFormAndNegativeIndicesGiveTheSameCube) {
 }
 
 TEST(LoadObj, IndexOutOfRangeNamesFileAndLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_index.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("bad_index.obj")); });
   EXPECT_CONTAINS(msg, "bad_index.obj line 12: vertex index 9 is out of range: the file defines only 8 vertices");
 }
 
 TEST(LoadObj, NanCoordinateNamesLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("nan_coordinate.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("nan_coordinate.obj")); });
   EXPECT_CONTAINS(msg, "nan_coordinate.obj line 3: vertex coordinate 'nan' is not finite");
 }
 
 TEST(LoadObj, NonNumericCoordinateNamesLineAndToken) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("non_numeric.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("non_numeric.obj")); });
   EXPECT_CONTAINS(msg, "non_numeric.obj line 3: vertex coordinate '1.0x' is not a number");
 }
 
 TEST(LoadObj, PolylineFileIsNotASurface) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("fibres.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("fibres.obj")); });
   EXPECT_CONTAINS(msg, "fibres.obj: contains no triangles, only 3 lines");
 }
 
@@ -170,34 +156,34 @@ TEST(LoadVtk, Version51OffsetsAndConnectivityBinary) {
 }
 
 TEST(LoadVtk, BadCoordinateCountNamesFileAndLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_coordinates.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("bad_coordinates.vtk")); });
   EXPECT_CONTAINS(msg, "bad_coordinates.vtk line 7: expected 3 coordinates per point, found 2");
 }
 
 TEST(LoadVtk, NonNumericCoordinateNamesLineAndToken) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("non_numeric.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("non_numeric.vtk")); });
   EXPECT_CONTAINS(msg, "non_numeric.vtk line 7: expected a coordinate in POINTS (8 points), found 'zero'");
 }
 
 TEST(LoadVtk, IndexOutOfRangeNamesLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_index.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("bad_index.vtk")); });
   EXPECT_CONTAINS(msg, "bad_index.vtk line 20: POLYGONS refers to point 8 but POINTS declares only 8 points");
 }
 
 TEST(LoadVtk, ListSizeThatDoesNotMatchTheCellsIsAnError) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("wrong_count.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("wrong_count.vtk")); });
   EXPECT_CONTAINS(msg, "wrong_count.vtk line");
   EXPECT_CONTAINS(msg, "POLYGONS cell 5 claims 4 points, which does not fit the declared list size 29");
 }
 
 TEST(LoadVtk, TruncatedBinaryIsAnError) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("truncated_binary.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("truncated_binary.vtk")); });
   EXPECT_CONTAINS(msg, "truncated_binary.vtk byte offset");
   EXPECT_CONTAINS(msg, "truncated file?");
 }
 
 TEST(LoadVtk, FibreFileIsNotASurface) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("fibres_ascii.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("fibres_ascii.vtk")); });
   EXPECT_CONTAINS(msg, "read it with loadPolylines");
 }
 
@@ -222,18 +208,18 @@ TEST(LoadVtp, AppendedBase64CompressedData) {
 }
 
 TEST(LoadVtp, UnsupportedCompressorIsNamed) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube_lz4.vtp")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("cube_lz4.vtp")); });
   EXPECT_CONTAINS(msg, "cube_lz4.vtp line 7:");
   EXPECT_CONTAINS(msg, "vtkLZ4DataCompressor, which is not supported");
 }
 
 TEST(LoadVtp, PointsArrayWithTooFewValuesNamesLineAndCounts) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("bad_points.vtp")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("bad_points.vtp")); });
   EXPECT_CONTAINS(msg, "bad_points.vtp line 7: Points DataArray holds 23 values, expected 24 (3 per point)");
 }
 
 TEST(LoadVtp, UnclosedElementNamesItsLine) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("unclosed.vtp")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("unclosed.vtp")); });
   EXPECT_CONTAINS(msg, "unclosed.vtp line");
   EXPECT_CONTAINS(msg, "does not match <Polys>");
 }
@@ -259,12 +245,12 @@ TEST(LoadPolylines, VtpLines) { expectThreeFibres(md::loadPolylines(data("fibres
 TEST(LoadPolylines, ObjLineRecords) { expectThreeFibres(md::loadPolylines(data("fibres.obj"))); }
 
 TEST(LoadPolylines, SurfaceFileHasNoLines) {
-  const std::string msg = loadErrorOf([] { md::loadPolylines(data("cube_ascii.vtk")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadPolylines(data("cube_ascii.vtk")); });
   EXPECT_CONTAINS(msg, "cube_ascii.vtk: contains no lines");
 }
 
 TEST(LoadPolylines, StlIsRejected) {
-  const std::string msg = loadErrorOf([] { md::loadPolylines(data("tetra_ascii.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadPolylines(data("tetra_ascii.stl")); });
   EXPECT_CONTAINS(msg, "STL files hold triangles, not polylines");
 }
 
@@ -292,37 +278,37 @@ TEST(SavePolylines, VtkRoundTripIsExact) {
 TEST(LoadClosedSurface, AcceptsClosedCube) { expectUnitCube(md::loadClosedSurface(data("cube.obj"))); }
 
 TEST(LoadClosedSurface, OpenBoxNamesFileAndBoundaryEdges) {
-  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("open_box.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadClosedSurface(data("open_box.obj")); });
   EXPECT_CONTAINS(msg, "open_box.obj");
   EXPECT_CONTAINS(msg, "4 boundary edges");
 }
 
 TEST(LoadClosedSurface, NonManifoldEdgeIsRejected) {
-  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("nonmanifold.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadClosedSurface(data("nonmanifold.obj")); });
   EXPECT_CONTAINS(msg, "nonmanifold.obj");
   EXPECT_CONTAINS(msg, "1 non-manifold edge");
 }
 
 TEST(LoadClosedSurface, FlippedFaceIsRejected) {
-  const std::string msg = loadErrorOf([] { md::loadClosedSurface(data("flipped.obj")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadClosedSurface(data("flipped.obj")); });
   EXPECT_CONTAINS(msg, "flipped.obj");
   EXPECT_CONTAINS(msg, "4 inconsistently oriented edges");
 }
 
 TEST(LoadErrors, MissingFileNamesPath) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("no_such_file.stl")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("no_such_file.stl")); });
   EXPECT_CONTAINS(msg, "no_such_file.stl: file not found");
 }
 
 TEST(LoadErrors, UnknownExtensionListsSupportedFormats) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube.ply")); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("cube.ply")); });
   EXPECT_CONTAINS(msg, "cube.ply: unknown file extension '.ply'; supported: .stl, .vtk, .vtp, .obj");
 }
 
 TEST(LoadErrors, DirectoryIsNotAMesh) {
   const std::string path = tempPath("directory.obj");
   std::filesystem::create_directories(path);
-  const std::string msg = loadErrorOf([&] { md::loadTriangleMesh(path); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([&] { md::loadTriangleMesh(path); });
   std::filesystem::remove(path);
   EXPECT_CONTAINS(msg, "directory.obj: is a directory");
 }
@@ -336,7 +322,7 @@ TEST(LoadErrors, ExtensionIsCaseInsensitive) {
 }
 
 TEST(LoadErrors, NonPositiveScaleIsRejected) {
-  const std::string msg = loadErrorOf([] { md::loadTriangleMesh(data("cube.obj"), -0.001); });
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadTriangleMesh(data("cube.obj"), -0.001); });
   EXPECT_CONTAINS(msg, "scale_to_metres must be a positive finite number");
 }
 

@@ -3,6 +3,8 @@
 
 #include "muscle_deformation/core/mesh_io.hpp"
 
+#include "test_helpers.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -25,22 +27,7 @@ const std::string kPackage = MD_PACKAGE_DIR;
 const std::string kBundledUrdf = kPackage + "/urdf/right_hip_thigh.urdf";
 const std::string kBundledScene = kPackage + "/config/scenes/right_hip_thigh.yaml";
 
-#define EXPECT_CONTAINS(text, part) \
-  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
 
-template <typename Call>
-std::string sceneErrorOf(Call&& call) {
-  try {
-    call();
-  } catch (const md::SceneError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    ADD_FAILURE() << "threw something other than SceneError: " << e.what();
-    return "";
-  }
-  ADD_FAILURE() << "did not throw";
-  return "";
-}
 
 // Two links, a revolute joint about z at (1, 0, 0.5) in the base frame, the child's origin 2 m along its x.
 const char* const kArmUrdf = R"(<?xml version="1.0"?>
@@ -148,14 +135,14 @@ TEST(Skeleton, ValueOutsideTheLimitsIsAcceptedWithAWarning) {
 
 TEST(Skeleton, UnknownJointAndNonFiniteValuesAreRejected) {
   const md::Skeleton skeleton = md::Skeleton::fromUrdfString(kArmUrdf, "arm");
-  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"elbow", 0.1}}); }), "unknown joint 'elbow'");
-  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"shoulder", std::nan("")}}); }), "non-finite");
-  EXPECT_CONTAINS(sceneErrorOf([&] { skeleton.linkPoses({{"shoulder", INFINITY}}); }), "'shoulder'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { skeleton.linkPoses({{"elbow", 0.1}}); }), "unknown joint 'elbow'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { skeleton.linkPoses({{"shoulder", std::nan("")}}); }), "non-finite");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { skeleton.linkPoses({{"shoulder", INFINITY}}); }), "'shoulder'");
 }
 
 TEST(Skeleton, MalformedUrdfNamesItsSource) {
-  EXPECT_CONTAINS(sceneErrorOf([] { md::Skeleton::fromUrdfString("<robot name='x'><link", "my.urdf"); }), "my.urdf");
-  EXPECT_CONTAINS(sceneErrorOf([] { md::Skeleton::fromUrdfFile("/nonexistent/robot.urdf"); }), "/nonexistent/robot.urdf");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([] { md::Skeleton::fromUrdfString("<robot name='x'><link", "my.urdf"); }), "my.urdf");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([] { md::Skeleton::fromUrdfFile("/nonexistent/robot.urdf"); }), "/nonexistent/robot.urdf");
 }
 
 TEST(Skeleton, BundledUrdfParsesWithJointsInDocumentOrder) {
@@ -196,9 +183,9 @@ TEST(Scene, UriResolverHandlesPackageFileAndRelativeUris) {
   EXPECT_TRUE(fs::equivalent(resolve("package://muscle_deformation/data/meshes/bones/femur_r.stl"), femur));
   EXPECT_TRUE(fs::equivalent(resolve("file://" + fs::absolute(femur).string()), femur));
   EXPECT_TRUE(fs::equivalent(resolve("meshes/bones/femur_r.stl"), femur));
-  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("package://other_pkg/a.stl"); }), "unknown package 'other_pkg'");
-  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("http://example.com/a.stl"); }), "unsupported URI scheme");
-  EXPECT_CONTAINS(sceneErrorOf([&] { resolve("meshes/missing.stl"); }), "meshes/missing.stl");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { resolve("package://other_pkg/a.stl"); }), "unknown package 'other_pkg'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { resolve("http://example.com/a.stl"); }), "unsupported URI scheme");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { resolve("meshes/missing.stl"); }), "meshes/missing.stl");
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -231,12 +218,12 @@ TEST(Scene, MissingKeyNamesTheFileAndLine) {
                                      "  surface: b.stl\n"
                                      "  fibres: b.vtk\n"
                                      "  insertion_bone: base\n");
-  const std::string message = sceneErrorOf([&] { md::loadSceneDescription(path); });
+  const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(path); });
   EXPECT_CONTAINS(message, path + " line 4");
   EXPECT_CONTAINS(message, "muscle 'a' has no 'insertion_bone' key");
 
   const std::string no_frame = writeTemp("no_frame.yaml", "urdf: robot.urdf\nmuscles: []\n");
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(no_frame); }), "no 'frame' key");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(no_frame); }), "no 'frame' key");
 }
 
 TEST(Scene, MalformedValuesAndYamlNameTheLine) {
@@ -244,13 +231,13 @@ TEST(Scene, MalformedValuesAndYamlNameTheLine) {
                                        "urdf: robot.urdf\nframe: base\nmuscles:\n"
                                        "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
                                        "   color: [1, 2, 0]}\n");
-  const std::string message = sceneErrorOf([&] { md::loadSceneDescription(colour); });
+  const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(colour); });
   EXPECT_CONTAINS(message, " line 5");
   EXPECT_CONTAINS(message, "[0, 1]");
 
   const std::string broken = writeTemp("broken.yaml", "urdf: robot.urdf\nframe: [base\n");
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(broken); }), "not valid YAML");
-  EXPECT_CONTAINS(sceneErrorOf([] { md::loadSceneDescription("/nonexistent/scene.yaml"); }), "/nonexistent/scene.yaml");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(broken); }), "not valid YAML");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([] { md::loadSceneDescription("/nonexistent/scene.yaml"); }), "/nonexistent/scene.yaml");
 }
 
 TEST(Scene, DuplicateMuscleNamesAreRejected) {
@@ -258,7 +245,7 @@ TEST(Scene, DuplicateMuscleNamesAreRejected) {
                                      "urdf: r.urdf\nframe: base\nmuscles:\n"
                                      "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b}\n"
                                      "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b}\n");
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadSceneDescription(path); }), "'a' is used twice");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(path); }), "'a' is used twice");
 }
 
 TEST(Scene, SelectionTakesNamesAndTagsInSceneOrderAndNamesUnknownEntries) {
@@ -268,7 +255,7 @@ TEST(Scene, SelectionTakesNamesAndTagsInSceneOrderAndNamesUnknownEntries) {
   EXPECT_EQ(picked.front().name, scene.muscles.front().name);
   EXPECT_EQ(picked.back().name, "piriformis");
   EXPECT_EQ(md::selectMuscles(scene, {}).size(), scene.muscles.size());
-  const std::string message = sceneErrorOf([&] { md::selectMuscles(scene, {"sartorius", "rectus_femur", "legs"}); });
+  const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::selectMuscles(scene, {"sartorius", "rectus_femur", "legs"}); });
   EXPECT_CONTAINS(message, "'rectus_femur', 'legs'");
 }
 
@@ -322,14 +309,14 @@ TEST(Scene, UnknownBoneOrMissingFibreFileIsASceneError) {
   const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   description.muscles[0].insertion_bone = "kneecap";
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
                   "bone 'kneecap'");
   description = md::loadSceneDescription(kBundledScene);
   description.muscles[0].fibre_file = "data/fibres/none.vtk";
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
                   "generate_fibres");
   description.frame = "thorax";
-  EXPECT_CONTAINS(sceneErrorOf([&] { md::loadScene(description, skeleton, resolve, kPackage); }), "'thorax'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage); }), "'thorax'");
 }
 
 TEST(Scene, PoseFromLinkPosesMovesBonesRelativeToRest) {

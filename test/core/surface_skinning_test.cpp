@@ -6,7 +6,7 @@
 #include "muscle_deformation/core/rigid_pretransform.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
-#include "test_meshes.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 

@@ -6,6 +6,7 @@
 #include <Eigen/Core>
 
 #include <functional>
+#include <limits>
 #include <string>
 
 namespace muscle_deformation {
@@ -39,6 +40,27 @@ struct SolverSettings {
   int max_iterations = 100;                 // cap for every rule
   double displacement_tolerance_m = 1e-6;   // for StoppingRule::displacement
   double time_budget_ms = 16.0;             // for StoppingRule::time_budget
+};
+
+// The seeds' stopping rules, evaluated after every iteration; shared by the solvers so they stop alike.
+class StoppingMonitor {
+ public:
+  StoppingMonitor(StoppingRule rule, double displacement_tolerance_m, double time_budget_ms)
+      : rule_(rule), tolerance_m_(displacement_tolerance_m), budget_ms_(time_budget_ms) {}
+  // True when the rule is met after this iteration. A solve that starts at rest moves little in its first iterations
+  // and speeds up, so only a small displacement that is no longer growing counts as settled.
+  bool met(int iteration, double mean_displacement_m, double elapsed_ms) {
+    const bool settling = iteration > 0 && mean_displacement_m <= previous_displacement_m_;
+    previous_displacement_m_ = mean_displacement_m;
+    if (rule_ == StoppingRule::displacement) return settling && mean_displacement_m < tolerance_m_;
+    if (rule_ == StoppingRule::time_budget) return elapsed_ms >= budget_ms_;
+    return false;
+  }
+
+ private:
+  StoppingRule rule_;
+  double tolerance_m_, budget_ms_;
+  double previous_displacement_m_ = std::numeric_limits<double>::infinity();
 };
 
 struct SolveStats {

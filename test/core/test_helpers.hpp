@@ -1,7 +1,12 @@
-// Small analytic meshes shared by the core tests.
+// Fixtures and checks shared by the core tests.
 #pragma once
 
 #include "muscle_deformation/core/geometry.hpp"
+
+#include <gtest/gtest.h>
+
+#include <exception>
+#include <string>
 
 namespace muscle_deformation::testing {
 
@@ -22,4 +27,23 @@ inline TriangleMesh unitCube() {
   return mesh;
 }
 
+// The message of the `Error` that `call` throws, or a test failure (and "") if it throws nothing or something else.
+template <typename Error, typename Call>
+std::string errorMessageOf(Call&& call) {
+  try {
+    call();
+  } catch (const Error& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "threw something other than the expected error: " << e.what();
+    return "";
+  }
+  ADD_FAILURE() << "did not throw";
+  return "";
+}
+
 }  // namespace muscle_deformation::testing
+
+// The text contains the part (error messages must name what is wrong).
+#define EXPECT_CONTAINS(text, part) \
+  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text) << "\nexpected to contain: " << (part)
