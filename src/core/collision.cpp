@@ -163,6 +163,26 @@ struct CollisionWorld::Impl {
     return false;
   }
 
+  // For every bone within reach of some muscle and every muscle whose bounds overlap it, fills `pairs` with their
+  // overlapping spheres and calls visit(muscle, bone). Returns the number of bones skipped as out of reach.
+  template <class Visit>
+  int forEachMuscleBoneOverlap(double margin, Visit&& visit) {
+    int skipped = 0;
+    for (int b = 0; b < bone_count; ++b) {
+      if (!boneReachesAnyMuscle(b, margin)) {
+        ++skipped;
+        continue;
+      }
+      for (int m = 0; m < muscle_count; ++m) {
+        if (!boxesOverlap(bone_box[static_cast<std::size_t>(b)], muscle_box[static_cast<std::size_t>(m)])) continue;
+        broad->findPairs(m, muscle_count + b, pairs);
+        visit(m, b);
+      }
+    }
+    return skipped;
+  }
+
+
   void addDisplacement(std::int32_t particle, const Eigen::Vector3d& d) {
     if (contact_count[static_cast<std::size_t>(particle)]++ == 0) touched.push_back(particle);
     displacement.col(particle) += d;
@@ -276,19 +296,10 @@ int CollisionWorld::resolve(ParticleState& state) {
   stats_.muscle_cd_ms += millisecondsSince(start);
 
   start = Clock::now();
-  int skipped = 0;
-  for (int b = 0; b < w.bone_count; ++b) {
-    if (!w.boneReachesAnyMuscle(b, settings_.bone_reach_margin_m)) {
-      ++skipped;
-      continue;
-    }
-    for (int m = 0; m < w.muscle_count; ++m) {
-      if (!boxesOverlap(w.bone_box[static_cast<std::size_t>(b)], w.muscle_box[static_cast<std::size_t>(m)])) continue;
-      w.broad->findPairs(m, w.muscle_count + b, w.pairs);
-      pairs_found += static_cast<std::int64_t>(w.pairs.size());
-      for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
-    }
-  }
+  const int skipped = w.forEachMuscleBoneOverlap(settings_.bone_reach_margin_m, [&](int m, int b) {
+    pairs_found += static_cast<std::int64_t>(w.pairs.size());
+    for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
+  });
   stats_.bone_cd_ms += millisecondsSince(start);
 
   // Apply the superposition of every particle's displacements, then stop the particles that collided.
@@ -323,22 +334,13 @@ CollisionStats CollisionWorld::measure(const ParticleState& state) const {
       continue;
     muscle_sum.add(w.penetration(w.muscle_spheres[a], p.first, w.muscle_spheres[b], p.second));
   }
-  int skipped = 0;
-  for (int b = 0; b < w.bone_count; ++b) {
-    if (!w.boneReachesAnyMuscle(b, settings_.bone_reach_margin_m)) {
-      ++skipped;
-      continue;
+  const int skipped = w.forEachMuscleBoneOverlap(settings_.bone_reach_margin_m, [&](int m, int b) {
+    for (const SpherePair& pair : w.pairs) {
+      if (w.sphere_fixed[static_cast<std::size_t>(m)][static_cast<std::size_t>(pair.first)]) continue;
+      bone_sum.add(w.penetration(w.muscle_spheres[static_cast<std::size_t>(m)], pair.first,
+                                 w.bone_world[static_cast<std::size_t>(b)], pair.second));
     }
-    for (int m = 0; m < w.muscle_count; ++m) {
-      if (!boxesOverlap(w.bone_box[static_cast<std::size_t>(b)], w.muscle_box[static_cast<std::size_t>(m)])) continue;
-      w.broad->findPairs(m, w.muscle_count + b, w.pairs);
-      for (const SpherePair& pair : w.pairs) {
-        if (w.sphere_fixed[static_cast<std::size_t>(m)][static_cast<std::size_t>(pair.first)]) continue;
-        bone_sum.add(w.penetration(w.muscle_spheres[static_cast<std::size_t>(m)], pair.first,
-                                   w.bone_world[static_cast<std::size_t>(b)], pair.second));
-      }
-    }
-  }
+  });
   CollisionStats result = stats_;
   result.muscle_muscle_contacts = muscle_sum.count;
   result.muscle_bone_contacts = bone_sum.count;

@@ -435,10 +435,7 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
   if (settings_.stopping_rule == StoppingRule::iterations) stats.stopping_rule_met = true;
   stats.last_dt_s = stats.min_dt_s = stats.max_dt_s = settings_.quasi_static ? 0.0 : settings_.time_step_s;
   stats.total_ms = millisecondsSince(solve_start);
-  const SpringMetrics springs = measureSprings(system_.springs, state.position);
-  stats.spring_deviation_ratio = springs.deviation_ratio;
-  stats.mean_strain = springs.mean_strain;
-  stats.max_strain = springs.max_strain;
+  recordSpringMetrics(system_.springs, state.position, stats);
   return stats;
 }
 

@@ -34,6 +34,13 @@ SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& p
   return metrics;
 }
 
+void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats) {
+  const SpringMetrics metrics = measureSprings(springs, position);
+  stats.spring_deviation_ratio = metrics.deviation_ratio;
+  stats.mean_strain = metrics.mean_strain;
+  stats.max_strain = metrics.max_strain;
+}
+
 double criticalDamping(const MassSpringSystem& system) {
   if (system.springs.size() == 0 || system.mass.size() == 0) return 0;
   const double mean_stiffness = system.springs.stiffness.mean();
@@ -262,10 +269,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
   if (settings_.stopping_rule == StoppingRule::iterations) stats.stopping_rule_met = true;
   if (stats.iterations == 0) stats.min_dt_s = 0;
   stats.total_ms = millisecondsSince(solve_start);
-  const SpringMetrics springs = measureSprings(system_.springs, state.position);
-  stats.spring_deviation_ratio = springs.deviation_ratio;
-  stats.mean_strain = springs.mean_strain;
-  stats.max_strain = springs.max_strain;
+  recordSpringMetrics(system_.springs, state.position, stats);
   return stats;
 }
 

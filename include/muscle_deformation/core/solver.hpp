@@ -82,6 +82,8 @@ struct SpringMetrics {
   double deviation_ratio = 0, mean_strain = 0, max_strain = 0;
 };
 SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position);
+// Fills the spring fields of `stats` (deviation ratio, mean and max strain) at `position`.
+void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats);
 
 // Critical-damping rule (thesis eq. 2.11 without its unit-dependent 6-neighbour constant): c = sqrt(4 * k_a * 2m)
 // with k_a the mean spring stiffness and m the mean particle mass. For two free particles joined by one spring this
