@@ -418,11 +418,7 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
     }
     stats.mss_ms += millisecondsSince(mss_start);
 
-    if (after_update) {
-      const auto collision_start = Clock::now();
-      stats.contacts = after_update(state);
-      stats.collision_ms += millisecondsSince(collision_start);
-    }
+    runAfterUpdateHook(after_update, state, stats);
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
     if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {

@@ -250,11 +250,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
     const double displacement = integrate(state, dt);
     stats.mss_ms += millisecondsSince(mss_start);
 
-    if (after_update) {
-      const auto collision_start = Clock::now();
-      stats.contacts = after_update(state);
-      stats.collision_ms += millisecondsSince(collision_start);
-    }
+    runAfterUpdateHook(after_update, state, stats);
     stats.iterations = iteration + 1;
     stats.last_dt_s = dt;
     stats.min_dt_s = std::min(stats.min_dt_s, dt);

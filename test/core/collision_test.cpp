@@ -1,6 +1,7 @@
 // Specification of the sphere collision stage (thesis 4.3, GRAPP 2014 section 3.3).
 #include "muscle_deformation/core/collision.hpp"
 #include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solver.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
@@ -52,13 +53,6 @@ md::MassSpringSystem makeSystem(std::vector<TestParticle> particles, int muscle_
     s.muscle_name.push_back("muscle " + std::to_string(m));
   }
   return s;
-}
-
-md::ParticleState stateAtRest(const md::MassSpringSystem& s) {
-  md::ParticleState state;
-  state.position = s.rest_position;
-  state.previous_position = s.rest_position;
-  return state;
 }
 
 md::SphereSet spheres(std::vector<std::pair<Eigen::Vector3d, double>> list) {
@@ -176,7 +170,7 @@ TEST(CollisionResponse, TwoTouchingSpheresStayPut) {
   for (const auto kind : kBothKinds) {
     const auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {1, {1.0, 0, 0}, 0.5}}, 2);
     md::CollisionWorld world(system, std::vector<md::SphereSet>{}, settingsFor(kind));
-    auto state = stateAtRest(system);
+    auto state = md::restState(system);
     EXPECT_EQ(world.resolve(state), 0) << md::toString(kind);
     EXPECT_EQ(state.position, system.rest_position) << md::toString(kind);
   }
@@ -186,7 +180,7 @@ TEST(CollisionResponse, TwoOverlappingFreeSpheresEndExactlyTouching) {
   for (const auto kind : kBothKinds) {
     const auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {1, {0.6, 0.2, -0.1}, 0.3}}, 2);
     md::CollisionWorld world(system, std::vector<md::SphereSet>{}, settingsFor(kind));
-    auto state = stateAtRest(system);
+    auto state = md::restState(system);
     EXPECT_EQ(world.resolve(state), 1);
     EXPECT_NEAR((state.position.col(0) - state.position.col(1)).norm(), 0.8, 1e-12) << md::toString(kind);
     // Half the overlap each: the midpoint does not move.
@@ -199,7 +193,7 @@ TEST(CollisionResponse, FreeSphereOverlappingFixedAttachmentIsPushedOutByWholeOv
   for (const auto kind : kBothKinds) {
     const auto system = makeSystem({{0, {0, 0, 0}, 0.5, true}, {1, {0.6, 0, 0}, 0.5}}, 2);
     md::CollisionWorld world(system, std::vector<md::SphereSet>{}, settingsFor(kind));
-    auto state = stateAtRest(system);
+    auto state = md::restState(system);
     EXPECT_EQ(world.resolve(state), 1);
     EXPECT_EQ(state.position.col(0), system.rest_position.col(0));
     EXPECT_NEAR(state.position(0, 1), 1.0, 1e-12) << md::toString(kind);
@@ -210,7 +204,7 @@ TEST(CollisionResponse, FreeSphereInsideBoneSphereIsPushedOutByWholeOverlap) {
   for (const auto kind : kBothKinds) {
     const auto system = makeSystem({{0, {0.5, 0, 0}, 0.1}}, 1);
     md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(0, 0, 0), 1.0}})}, settingsFor(kind));
-    auto state = stateAtRest(system);
+    auto state = md::restState(system);
     EXPECT_EQ(world.resolve(state), 1);
     EXPECT_TRUE(state.position.col(0).isApprox(Eigen::Vector3d(1.1, 0, 0), 1e-12)) << md::toString(kind);
   }
@@ -224,7 +218,7 @@ TEST(CollisionResponse, ParticleWithSeveralContactsGetsTheSuperposition) {
     md::CollisionWorld world(system,
                              {spheres({{Eigen::Vector3d(0.8, 0, 0), 0.5}, {Eigen::Vector3d(0, 0.9, 0), 0.5}})},
                              settingsFor(kind));
-    auto state = stateAtRest(system);
+    auto state = md::restState(system);
     EXPECT_EQ(world.resolve(state), 3);
     EXPECT_TRUE(state.position.col(0).isApprox(Eigen::Vector3d(-0.2, -0.1, 0.15), 1e-12))
         << md::toString(kind) << ": " << state.position.col(0).transpose();
@@ -235,7 +229,7 @@ TEST(CollisionResponse, ParticleWithSeveralContactsGetsTheSuperposition) {
 TEST(CollisionResponse, CollidedParticlesHaveZeroVelocityOthersKeepTheirs) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {1, {0.6, 0, 0}, 0.5}, {1, {5, 0, 0}, 0.5}}, 2);
   md::CollisionWorld world(system, std::vector<md::SphereSet>{});
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   state.previous_position.colwise() -= Eigen::Vector3d(0.01, 0.02, 0.03);  // every particle moving
   world.resolve(state);
   EXPECT_EQ(state.previous_position.col(0), state.position.col(0));
@@ -246,7 +240,7 @@ TEST(CollisionResponse, CollidedParticlesHaveZeroVelocityOthersKeepTheirs) {
 TEST(CollisionResponse, SpheresOfTheSameMuscleNeverCollide) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {0, {0.1, 0, 0}, 0.5}}, 1);
   md::CollisionWorld world(system, std::vector<md::SphereSet>{});
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   EXPECT_EQ(world.resolve(state), 0);
   EXPECT_EQ(state.position, system.rest_position);
 }
@@ -254,7 +248,7 @@ TEST(CollisionResponse, SpheresOfTheSameMuscleNeverCollide) {
 TEST(CollisionResponse, TwoFixedAttachmentsOverlappingAreLeftAlone) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.5, true}, {1, {0.1, 0, 0}, 0.5, true}}, 2);
   md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(0, 0.2, 0), 0.5}})});
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   EXPECT_EQ(world.resolve(state), 0);
   EXPECT_EQ(state.position, system.rest_position);
 }
@@ -263,7 +257,7 @@ TEST(CollisionResponse, InteriorParticlesNeverCollide) {
   auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {1, {0.1, 0, 0}, 0.5}}, 2);
   system.is_boundary[1] = 0;
   md::CollisionWorld world(system, std::vector<md::SphereSet>{});
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   EXPECT_EQ(world.resolve(state), 0);
   EXPECT_EQ(world.muscleSphereCount(), 1);
 }
@@ -271,7 +265,7 @@ TEST(CollisionResponse, InteriorParticlesNeverCollide) {
 TEST(CollisionResponse, BoneSpheresFollowTheBoneTransform) {
   const auto system = makeSystem({{0, {2.0, 0, 0}, 0.5}}, 1);
   md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(0, 0, 0), 1.0}})}, {}, {"femur_r"});
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   EXPECT_EQ(world.resolve(state), 0);  // at rest the bone is 2 m away, touching would need 1.5 m
   md::Pose pose;
   pose.bone_transforms["femur_r"] = Eigen::Isometry3d(Eigen::Translation3d(1.0, 0, 0));
@@ -284,7 +278,7 @@ TEST(CollisionWorld, BoneOutOfReachIsSkipped) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.01}, {0, {0.1, 0, 0}, 0.01}}, 1);
   md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(0.05, 0.015, 0), 0.01}}),   // within reach
                                     spheres({{Eigen::Vector3d(3.0, 0, 0), 0.2}})});       // other leg
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   world.resolve(state);
   EXPECT_EQ(world.accumulatedStats().bones_skipped, 1);
   EXPECT_EQ(world.measure(state).bones_skipped, 1);
@@ -299,7 +293,7 @@ TEST(CollisionWorld, SetBoneTransformsRejectsAWrongCount) {
 TEST(CollisionWorld, MeasureReportsRemainingPenetrationWithoutChangingTheState) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.5}, {1, {0.6, 0, 0}, 0.5}, {1, {0, 1.2, 0}, 0.1}}, 2);
   md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(0, 1.5, 0), 0.25}})});
-  const auto state = stateAtRest(system);
+  const auto state = md::restState(system);
   const md::CollisionStats stats = world.measure(state);
   EXPECT_EQ(stats.muscle_muscle_contacts, 1);
   EXPECT_NEAR(stats.max_penetration_muscle_muscle_m, 0.4, 1e-12);
@@ -318,7 +312,7 @@ TEST(CollisionWorld, BothBroadPhasesGiveTheSameResponseOnARandomScene) {
   const auto bone = randomSpheres(rng, 800, 0.1, 0.002, 0.01);
   md::CollisionWorld octree(system, {bone}, settingsFor(md::BroadPhaseKind::octree));
   md::CollisionWorld grid(system, {bone}, settingsFor(md::BroadPhaseKind::hash_grid));
-  auto a = stateAtRest(system), b = stateAtRest(system);
+  auto a = md::restState(system), b = md::restState(system);
   for (int iteration = 0; iteration < 3; ++iteration) {
     const int ca = octree.resolve(a), cb = grid.resolve(b);
     EXPECT_EQ(ca, cb);
@@ -647,7 +641,7 @@ TEST(CollisionIntegration, SmallMusclePressedAgainstABonePlateEndsOutsideThePlat
   md::SolverSettings solver_settings;
   solver_settings.max_iterations = 400;
   md::VerletSolver solver(system, solver_settings);
-  auto state = stateAtRest(system);
+  auto state = md::restState(system);
   const md::CollisionStats before = world.measure(state);
   ASSERT_GT(before.muscle_bone_contacts, 0) << "the raised plate must press into the muscle";
   const md::SolveStats solve = solver.solve(state, [&](md::ParticleState& s) { return world.resolve(s); });

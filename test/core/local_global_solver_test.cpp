@@ -7,21 +7,17 @@
 #include "muscle_deformation/core/spring_layout.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
+#include "test_helpers.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::stateAt;
 
 namespace {
-
-ParticleState stateAt(const Eigen::Matrix3Xd& positions) {
-  ParticleState state;
-  state.position = positions;
-  state.previous_position = positions;
-  return state;
-}
 
 double springEnergy(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
   double energy = 0;

@@ -2,20 +2,16 @@
 #include "muscle_deformation/core/model_builder.hpp"
 #include "muscle_deformation/core/solver.hpp"
 
+#include "test_helpers.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::stateAt;
 
 namespace {
-
-ParticleState stateAt(const Eigen::Matrix3Xd& positions) {
-  ParticleState state;
-  state.position = positions;
-  state.previous_position = positions;
-  return state;
-}
 
 // Two free particles 1 m apart joined by one spring; mass 1 kg, stiffness 1 N/m.
 MassSpringSystem twoParticleSpring() {

@@ -2,6 +2,7 @@
 #pragma once
 
 #include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/mass_spring_system.hpp"
 
 #include <gtest/gtest.h>
 
@@ -25,6 +26,14 @@ inline TriangleMesh unitCube() {
     mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
   }
   return mesh;
+}
+
+// A state at `positions` with zero velocity.
+inline ParticleState stateAt(const Eigen::Matrix3Xd& positions) {
+  ParticleState state;
+  state.position = positions;
+  state.previous_position = positions;
+  return state;
 }
 
 // The message of the `Error` that `call` throws, or a test failure (and "") if it throws nothing or something else.

@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 
+#include <chrono>
 #include <functional>
 #include <limits>
 #include <string>
@@ -100,6 +101,15 @@ Eigen::VectorXd stiffnessScaledMass(const MassSpringSystem& system);
 // Called after every MSS update with the new state; returns the number of contacts resolved. The collision stage
 // plugs in here so the solver stays free of collision code.
 using AfterUpdateHook = std::function<int(ParticleState& state)>;
+
+// Runs the collision hook (if any) on the state just integrated, recording its contacts and time in `stats`.
+// Both solvers call it after every update.
+inline void runAfterUpdateHook(const AfterUpdateHook& after_update, ParticleState& state, SolveStats& stats) {
+  if (!after_update) return;
+  const auto start = std::chrono::steady_clock::now();
+  stats.contacts = after_update(state);
+  stats.collision_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
 
 class VerletSolver {
  public:
