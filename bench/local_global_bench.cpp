@@ -3,6 +3,7 @@
 // without the volume term) and for the damped Verlet solver; the muscles' volume error; the factorisation's cost.
 // Writes out/bench/local_global.json.
 #include "bench_util.hpp"
+#include "convergence_run.hpp"
 
 #include "muscle_deformation/core/collision.hpp"
 #include "muscle_deformation/core/local_global_solver.hpp"
@@ -22,60 +23,10 @@ using namespace muscle_deformation;
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double rmsMillimetres(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
-  return 1e3 * std::sqrt((a - b).colwise().squaredNorm().mean());
-}
-
-struct Checkpoint {
-  int iteration = 0;
-  double wall_ms = 0;  // solve time up to the end of this iteration, the snapshot's own cost excluded
-  Eigen::Matrix3Xd position;
-};
-
-struct Run {
-  std::vector<Checkpoint> checkpoints;
-  SolveStats stats;
-  Eigen::Matrix3Xd final_position;
-};
-
-// Checkpoints at 1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, ... iterations (about 8 per decade), up to `cap`.
-std::vector<int> checkpointIterations(int cap) {
-  std::vector<int> result;
-  for (double k = 1; k <= cap; k = std::max(k + 1, std::round(k * 1.25))) result.push_back(static_cast<int>(k));
-  if (result.empty() || result.back() != cap) result.push_back(cap);
-  return result;
-}
-
-// One cold solve from the rigid pre-transform, with collision after every update, snapshotting the state at the
-// checkpoint iterations. `solve` runs the solver with the given hook.
-Run coldSolve(const MassSpringSystem& system, const BoneTransforms& transforms, CollisionWorld* collision, int cap,
-              const std::function<SolveStats(ParticleState&, const AfterUpdateHook&)>& solve) {
-  Run run;
-  const std::vector<int> wanted = checkpointIterations(cap);
-  ParticleState state;
-  rigidPretransform(system, transforms, state);
-  std::size_t next = 0;
-  int iteration = 0;
-  double snapshot_ms = 0;
-  const auto start = Clock::now();
-  const AfterUpdateHook hook = [&](ParticleState& s) {
-    const int contacts = collision ? collision->resolve(s) : 0;
-    ++iteration;
-    if (next < wanted.size() && iteration == wanted[next]) {
-      const auto snapshot_start = Clock::now();
-      const double elapsed = std::chrono::duration<double, std::milli>(snapshot_start - start).count();
-      run.checkpoints.push_back({iteration, elapsed - snapshot_ms, s.position});
-      snapshot_ms += std::chrono::duration<double, std::milli>(Clock::now() - snapshot_start).count();
-      ++next;
-    }
-    return contacts;
-  };
-  run.stats = solve(state, hook);
-  run.final_position = state.position;
-  return run;
-}
+using bench::Checkpoint;
+using bench::coldSolve;
+using bench::rmsMillimetres;
+using Run = bench::ConvergenceRun;
 
 // Wall time of a cold solve stopped at exactly `iterations`, without snapshots (median of `repetitions`).
 double coldSolveMilliseconds(const MassSpringSystem& system, const BoneTransforms& transforms,
