@@ -1,0 +1,293 @@
+"""Sections of docs/BENCHMARKS.md for speed against error, the choice of defaults, the paper's table on real anatomy,
+stability on hard cases and the economies, with their plots (matplotlib, PNG in docs/img/).
+
+Used by tools/bench_report.py. Every number comes from the JSON files in out/bench/; nothing is assumed."""
+import math
+import statistics
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: make bench runs without a display
+import matplotlib.pyplot as plt  # noqa: E402
+
+RMS_TARGETS_MM = (5.0, 2.0, 1.0)
+TOTAL_BUDGET_60HZ_MS = 1000.0 / 60.0
+
+
+def _number(value, digits=2):
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def _mean(values):
+    values = [v for v in values if v is not None and not math.isnan(v)]
+    return statistics.fmean(values) if values else float("nan")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Speed against error
+
+def convergence_curves(points):
+    """Per (config, start): the checkpoints averaged over the poses that have them, sorted by iterations.
+
+    A curve point is kept only where every pose of that configuration has a checkpoint at that iteration count, so a
+    mean never mixes a different set of poses."""
+    by_config = {}
+    for point in points:
+        if point.get("kind", "curve") != "curve":
+            continue
+        key = (point["config"], point["start"])
+        by_config.setdefault(key, []).append(point)
+    curves = {}
+    for key, rows in by_config.items():
+        poses = {row["pose"] for row in rows}
+        by_iterations = {}
+        for row in rows:
+            by_iterations.setdefault(int(row["iterations"]), []).append(row)
+        curve = []
+        for iterations in sorted(by_iterations):
+            group = by_iterations[iterations]
+            if {row["pose"] for row in group} != poses:
+                continue
+            curve.append({
+                "iterations": iterations,
+                "wall_ms": _mean([row["wall_ms"] for row in group]),
+                "rms_mm": _mean([row["rms_mm"] for row in group]),
+                "rms_max_mm": max(row["rms_mm"] for row in group),
+                "spring_deviation": _mean([row["spring_deviation"] for row in group]),
+                "volume_error_pct": _mean([row["volume_error_pct"] for row in group]),
+                "max_penetration_mm": max(row["max_penetration_mm"] for row in group),
+                "poses": len(poses),
+                "sample": group[0],
+            })
+        curves[key] = curve
+    return curves
+
+
+def fastest_to_target(curves, target_mm, start):
+    """The configuration (of this start mode) whose mean RMS over the poses first falls to target_mm soonest."""
+    best = None
+    for (config, curve_start), curve in curves.items():
+        if curve_start != start:
+            continue
+        reached = next((point for point in curve if point["rms_mm"] <= target_mm), None)
+        if reached and (best is None or reached["wall_ms"] < best[1]["wall_ms"]):
+            best = (config, reached)
+    return best
+
+
+def defaults_table(points):
+    curves = convergence_curves(points)
+    lines = ["| RMS target | start | fastest configuration | iterations | wall ms (mean over poses) | "
+             "RMS mm mean / worst pose | volume error % | max sphere penetration into bone mm |",
+             "|---|---|---|---|---|---|---|---|"]
+    choices = {}
+    for target in RMS_TARGETS_MM:
+        for start in ("cold", "warm"):
+            best = fastest_to_target(curves, target, start)
+            choices[(target, start)] = best
+            if best is None:
+                lines.append(f"| {target:g} mm | {start} | none reached it | - | - | - | - | - |")
+                continue
+            config, point = best
+            lines.append(f"| {target:g} mm | {start} | `{config}` | {point['iterations']} | {point['wall_ms']:.1f} | "
+                         f"{point['rms_mm']:.2f} / {point['rms_max_mm']:.2f} | {point['volume_error_pct']:.2f} | "
+                         f"{point['max_penetration_mm']:.2f} |")
+    return lines, choices, curves
+
+
+# Groups of configurations shown together in the plot panels; a configuration is placed by its JSON keys.
+def _panel_of(sample):
+    if sample["solver"] == "local_global":
+        return "solvers"
+    if sample.get("broad_phase", "octree") != "octree":
+        return "timing"
+    if sample["dt_rule"] == "adaptive" or abs(sample.get("dt_fraction", 0.9) - 0.9) > 1e-6:
+        return "timing"
+    return "layouts"
+
+
+PANEL_TITLES = {
+    "layouts": "Spring layouts (fixed dt 0.9 x bound, octree)",
+    "timing": "Time-step rules and broad phases (default layout)",
+    "solvers": "Local/global solver beside Verlet (default layout)",
+}
+
+
+def speed_error_plot(curves, default_config, path):
+    panels = ["layouts", "timing", "solvers"]
+    figure, axes = plt.subplots(1, 3, figsize=(16, 5.2), sharey=True)
+    for axis, panel in zip(axes, panels):
+        shown = False
+        colours = {}
+        for (config, start), curve in sorted(curves.items()):
+            if not curve:
+                continue
+            sample = curve[0]["sample"]
+            in_panel = _panel_of(sample) == panel or (panel == "solvers" and config == default_config)
+            if not in_panel:
+                continue
+            style = "-" if start == "cold" else "--"
+            # cold and warm runs of one configuration share a colour
+            colour = colours.setdefault(config, f"C{len(colours) % 10}")
+            axis.loglog([p["wall_ms"] for p in curve], [p["rms_mm"] for p in curve], style, marker=".", color=colour,
+                        label=f"{config} ({start})")
+            shown = True
+        for target in RMS_TARGETS_MM:
+            axis.axhline(target, color="grey", linewidth=0.6, linestyle=":")
+        axis.axvline(TOTAL_BUDGET_60HZ_MS, color="red", linewidth=0.8, linestyle=":")
+        axis.set_title(PANEL_TITLES[panel], fontsize=10)
+        axis.set_xlabel("wall time per pose, ms (mean over 5 gait poses)")
+        axis.grid(True, which="both", linewidth=0.3)
+        if shown:
+            axis.legend(fontsize=7)
+    axes[0].set_ylabel("RMS distance to the converged shape, mm")
+    figure.suptitle("Bundled thigh13 scene, 20 particles per fibre: error against time "
+                    "(solid cold, dashed warm; red line 16.7 ms = 60 Hz)", fontsize=11)
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def resolution_plot(rows, path):
+    figure, axis = plt.subplots(figsize=(6, 4))
+    by_pose = {}
+    for row in rows:
+        by_pose.setdefault(row["pose"], []).append(row)
+    for pose, group in sorted(by_pose.items()):
+        group.sort(key=lambda row: row["particles_per_fibre"])
+        axis.plot([row["particles_per_fibre"] for row in group], [row["rms_mm"] for row in group], marker="o",
+                  label=f"gait frame {pose}")
+    axis.set_xlabel("particles per fibre")
+    axis.set_ylabel("surface RMS to the converged 80-per-fibre surface, mm")
+    axis.grid(True, linewidth=0.3)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def speed_error_section(points, img_dir, img_link_prefix="img/"):
+    references = [p for p in points if p.get("kind") == "reference"]
+    resolution = [p for p in points if p.get("kind") == "resolution"]
+    table, choices, curves = defaults_table(points)
+    poses = sorted({p["pose"] for p in points if p.get("kind", "curve") == "curve"})
+    lines = ["## Speed against error (report issue)", "",
+             f"Bundled scene, the 13 `thigh13` muscles x 64 fibres, 20 particles per fibre, gait frames {poses} of "
+             "`data/gait/gait_1cycle.csv`. Error is measured against each pose's converged shape of the same model "
+             "(same spring layout and resolution). Raw points: `out/bench/speed_vs_error.json`.", ""]
+    if references:
+        reached = sum(1 for r in references if r.get("reached_tolerance", 0))
+        lines += [f"References: {len(references)} (layout x pose); {reached} reached a mean displacement below "
+                  "1e-7 m per iteration, the others stopped at the iteration cap: "
+                  f"{min(int(r['iterations']) for r in references)}-{max(int(r['iterations']) for r in references)} "
+                  "iterations, last mean displacement "
+                  f"{min(r.get('mean_displacement_m', float('nan')) for r in references):.1e}-"
+                  f"{max(r.get('mean_displacement_m', float('nan')) for r in references):.1e} m.", ""]
+    default_config = next((p["config"] for p in points if p.get("is_default")), None)
+    speed_error_plot(curves, default_config, img_dir / "speed_vs_error.png")
+    lines += [f"![error against time]({img_link_prefix}speed_vs_error.png)", ""]
+    lines += ["### Fastest configuration per error target (the defaults follow this table)", "",
+              "Mean RMS over the poses; the worst pose is beside it. Wall time includes collision handling, "
+              "excludes skinning.", ""] + table + [""]
+    if resolution:
+        resolution_plot(resolution, img_dir / "error_vs_resolution.png")
+        lines += ["### Error against resolution", "",
+                  "Each resolution's converged shape, skinned, against the converged 80-per-fibre surface (RMS over "
+                  "surface vertices).", "",
+                  f"![error against resolution]({img_link_prefix}error_vs_resolution.png)", "",
+                  "| particles/fibre | " + " | ".join(f"frame {p}" for p in sorted({r['pose'] for r in resolution}))
+                  + " |", "|---|" + "---|" * len({r['pose'] for r in resolution})]
+        for ppf in sorted({int(r["particles_per_fibre"]) for r in resolution}):
+            cells = []
+            for pose in sorted({r["pose"] for r in resolution}):
+                match = [r for r in resolution if int(r["particles_per_fibre"]) == ppf and r["pose"] == pose]
+                cells.append(_number(match[0]["rms_mm"]) if match else "-")
+            lines.append(f"| {ppf} | " + " | ".join(cells) + " |")
+        lines += [""]
+    lines += ["### Every configuration", "",
+              "| configuration | start | poses | RMS mm at the last point (iterations, ms) | first point <= 5 / 2 / 1 mm "
+              "(ms) | volume error % at the last point |", "|---|---|---|---|---|---|"]
+    for (config, start), curve in sorted(curves.items()):
+        if not curve:
+            continue
+        last = curve[-1]
+        firsts = []
+        for target in RMS_TARGETS_MM:
+            reached = next((p for p in curve if p["rms_mm"] <= target), None)
+            firsts.append(f"{reached['wall_ms']:.0f}" if reached else "-")
+        lines.append(f"| `{config}` | {start} | {last['poses']} | {last['rms_mm']:.2f} ({last['iterations']}, "
+                     f"{last['wall_ms']:.0f}) | {' / '.join(firsts)} | {last['volume_error_pct']:.2f} |")
+    return lines + [""], choices
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The paper's Table 1
+
+def paper_table_section(rows):
+    lines = ["## The paper's Table 1 on real anatomy (report issue)", "",
+             "Milliseconds per iteration, mean over five gait poses of the per-pose medians; the paper's figures are "
+             "its Table 1 (s per 500 iterations / 500, Core2Duo E6300). Raw numbers: `out/bench/paper_table.json`.", "",
+             "| scene | particles/fibre | particles | boundary particles | bone spheres | MSS | paper | muscle CD | paper "
+             "| bone CD | paper | total | paper total | speed-up |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(
+            f"| {row.get('scene', '-')} | {int(row['particles_per_fibre'])} | {int(row.get('particles', 0))} | "
+            f"{int(row.get('boundary_particles', 0))} | {int(row.get('bone_spheres', 0))} | {row['mss_ms']:.3f} | "
+            f"{_number(row.get('paper_mss_ms'), 1)} | {row['muscle_cd_ms']:.3f} | {_number(row.get('paper_muscle_cd_ms'), 1)} | "
+            f"{row['bone_cd_ms']:.3f} | {_number(row.get('paper_bone_cd_ms'), 1)} | {row['total_ms']:.3f} | "
+            f"{row['paper_total_ms']:.1f} | {row['ratio']:.0f}x |")
+    return lines + [""]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Stability and economies: generic tables of the benches' objects
+
+def _generic_table(rows, columns):
+    lines = ["| " + " | ".join(label for label, _ in columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        cells = []
+        for _, key in columns:
+            value = row.get(key)
+            if isinstance(value, float):
+                cells.append(_number(value, 3 if abs(value) < 10 else 1))
+            elif isinstance(value, bool):
+                cells.append("yes" if value else "no")
+            else:
+                cells.append("-" if value is None else str(value))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def stability_section(rows):
+    cases = [row for row in rows if row.get("case") != "pbd_femur_flexion"]
+    pbd = [row for row in rows if row.get("case") == "pbd_femur_flexion"]
+    keys = []
+    for row in cases:
+        for key in row:
+            if key not in keys:
+                keys.append(key)
+    lines = ["## Stability on hard cases (report issue)", "",
+             "Each case is also a gtest on the synthetic scene (`test/core/stability_test.cpp`); here on the bundled "
+             "scene. Raw numbers: `out/bench/stability.json`.", ""]
+    lines += _generic_table(cases, [(key.replace("_", " "), key) for key in keys]) + [""]
+    for row in pbd:
+        lines += ["### The 2019 PBD thesis scenario on our data", "",
+                  "The femur flexes 1 rad forward and back over "
+                  f"{int(row.get('frames', 200))} frames, warm start, the node's default settings: " +
+                  ", ".join(f"{key.replace('_', ' ')} {_number(value) if isinstance(value, float) else value}"
+                            for key, value in row.items() if key not in ("case",)) + ".", ""]
+    return lines
+
+
+def economy_section(rows):
+    keys = []
+    for row in rows:
+        for key in row:
+            if key not in keys:
+                keys.append(key)
+    lines = ["## Model only what a scene needs (report issue)", "",
+             "What each economy buys on the bundled scene at 20 particles per fibre with the node's defaults. Raw "
+             "numbers: `out/bench/economy.json`.", ""]
+    return lines + _generic_table(rows, [(key.replace("_", " "), key) for key in keys]) + [""]
