@@ -401,6 +401,7 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   if (request.max_iterations > 0) solver.max_iterations = request.max_iterations;
   if (request.displacement_tolerance_m > 0) solver.displacement_tolerance_m = request.displacement_tolerance_m;
   if (request.time_budget_ms > 0) solver.time_budget_ms = request.time_budget_ms;
+  shareStoppingRule(settings.simulation);
   std::ostringstream key;
   for (const MuscleDescription& m : selected) key << m.name << ',';
   key << '|' << solver.max_iterations << '|' << solver.displacement_tolerance_m << '|' << solver.time_budget_ms;
