@@ -375,7 +375,44 @@ void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
   rhs_ = inertial_target_ + fixed_rhs_;
   addProjections(state.position, rhs_);
   // Global step: the prefactored matrix, three right-hand sides.
-  free_next_ = factor_.solve(rhs_);
+  solvePrefactored(rhs_, free_next_);
+}
+
+void LocalGlobalSolver::solvePrefactored(const Eigen::MatrixXd& rhs, Eigen::MatrixXd& result) {
+  const Eigen::SparseMatrix<double>& lower = factor_.matrixL().nestedExpression();  // strictly lower, unit diagonal
+  const Eigen::VectorXd& diagonal = factor_.vectorD();
+  const auto* permutation = factor_.permutationP().indices().data();
+  const auto* column_start = lower.outerIndexPtr();
+  const auto* row = lower.innerIndexPtr();
+  const double* value = lower.valuePtr();
+  const Eigen::Index n = free_count_;
+  permuted_solution_.resize(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) permuted_solution_.col(permutation[i]) = rhs.row(i).transpose();
+  double* y = permuted_solution_.data();
+  for (Eigen::Index j = 0; j < n; ++j) {  // L z = P b
+    const double y0 = y[3 * j], y1 = y[3 * j + 1], y2 = y[3 * j + 2];
+    for (auto p = column_start[j]; p < column_start[j + 1]; ++p) {
+      double* target = y + 3 * row[p];
+      target[0] -= value[p] * y0;
+      target[1] -= value[p] * y1;
+      target[2] -= value[p] * y2;
+    }
+  }
+  for (Eigen::Index j = 0; j < n; ++j) permuted_solution_.col(j) /= diagonal[j];  // D w = z
+  for (Eigen::Index j = n - 1; j >= 0; --j) {  // L^T v = w
+    double y0 = y[3 * j], y1 = y[3 * j + 1], y2 = y[3 * j + 2];
+    for (auto p = column_start[j]; p < column_start[j + 1]; ++p) {
+      const double* source = y + 3 * row[p];
+      y0 -= value[p] * source[0];
+      y1 -= value[p] * source[1];
+      y2 -= value[p] * source[2];
+    }
+    y[3 * j] = y0;
+    y[3 * j + 1] = y1;
+    y[3 * j + 2] = y2;
+  }
+  result.resize(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) result.row(i) = permuted_solution_.col(permutation[i]).transpose();
 }
 
 void LocalGlobalSolver::scatterFree(const Eigen::MatrixXd& free, Eigen::Matrix3Xd& position) const {
@@ -431,7 +468,8 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       history_alpha_[slot] = history_inverse_curvature_[slot] * (history_step_[slot].array() * direction_.array()).sum();
       direction_ -= history_alpha_[slot] * history_gradient_change_[slot];
     }
-    direction_ = factor_.solve(direction_);
+    solvePrefactored(direction_, trial_);  // trial_ is free until the line search
+    direction_.swap(trial_);
     for (int j = stored - 1; j >= 0; --j) {
       const int slot = (newest - j + history) % history;
       const double beta =
@@ -442,7 +480,8 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
     double slope = (gradient_.array() * direction_.array()).sum();
     if (!(slope < 0)) {  // the history no longer describes the energy here: fall back to the plain preconditioned step
       stored = 0;
-      direction_ = -factor_.solve(gradient_);
+      solvePrefactored(gradient_, direction_);
+      direction_ = -direction_;
       slope = (gradient_.array() * direction_.array()).sum();
     }
 

@@ -139,6 +139,9 @@ class LocalGlobalSolver {
   // The quasi-Newton iteration loop of solve(); fixed_rhs_ must be set for the pose.
   void quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
                              std::chrono::steady_clock::time_point solve_start);
+  // (L + W)^-1 rhs with the prefactored LDL^T, the three coordinates carried through one pass over the factor
+  // (Eigen's solve makes one pass per right-hand side, and the passes are bound by reading the factor).
+  void solvePrefactored(const Eigen::MatrixXd& rhs, Eigen::MatrixXd& result);
   // Common end of a solve: stopping flag, time, spring metrics.
   SolveStats finishSolve(ParticleState& state, SolveStats& stats, std::chrono::steady_clock::time_point solve_start) const;
   // Free particles' rows of `free` written into `position`.
@@ -169,6 +172,7 @@ class LocalGlobalSolver {
   Eigen::MatrixXd fixed_rhs_, rhs_, free_current_, free_previous_, free_next_, chebyshev_older_, inertial_target_,
       inertial_prediction_;
   Eigen::MatrixXd fixed_position_;  // all particles x 3, only fixed rows used
+  Eigen::Matrix3Xd permuted_solution_;  // solvePrefactored's work: one column per free particle, in factor order
   // Quasi-Newton buffers (free particles x 3 each), allocated once when lbfgs_history > 0.
   Eigen::MatrixXd gradient_, previous_gradient_, trial_gradient_, direction_, trial_;
   std::vector<Eigen::MatrixXd> history_step_, history_gradient_change_;  // s_i, y_i of the last lbfgs_history steps
