@@ -509,7 +509,6 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
     previous_gradient_.swap(gradient_);
     gradient_.swap(trial_gradient_);
     energy = trial_energy;
-    const double displacement = (free_current_ - free_previous_).rowwise().norm().sum();
     scatterFree(free_previous_, state.previous_position);
     stats.mss_ms += millisecondsSince(mss_start);
 
@@ -519,6 +518,9 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       gatherFree(state.position, free_current_);
       energy = energyAndGradient(state.position, free_current_, gradient_);
     }
+    // Measured between the states the hook left: a step into a contact that the hook undoes is no motion, so resting
+    // contacts do not keep the displacement rule from settling.
+    const double displacement = (free_current_ - free_previous_).rowwise().norm().sum();
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
     if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
