@@ -125,6 +125,8 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
   for (const int count : world->boneSphereCounts()) bone_spheres += count;
   records.add("bone_spheres", bone_spheres);
   records.add("collision_spheres", static_cast<double>(world->muscleSphereCount()));
+  // Particles whose sphere was dropped at build time because its centre lay inside a bone sphere at rest.
+  records.add("rest_spheres_removed", static_cast<double>(simulation.restOverlaps().spheres_removed));
   records.add("bones_skipped_median",
               bench::median(statColumn(frames, [](const FrameStats& s) { return s.collision.bones_skipped; })));
   records.add("penetration_mm", kMillimetresPerMetre * maxOf(statColumn(frames, [](const FrameStats& s) {
