@@ -12,13 +12,13 @@
 #include "muscle_deformation/core/solver.hpp"
 #include "muscle_deformation/core/synthetic_scene.hpp"
 
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <new>
-#include <random>
 
 using namespace muscle_deformation;
 

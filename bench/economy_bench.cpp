@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <string>
 #include <utility>
@@ -70,6 +71,21 @@ class GaitPlayer {
   BoneTransforms previous_;
   bool has_previous_ = false;
 };
+
+// Plays the poses through several simulations frame by frame in turn (so slow spells of a shared machine hit all of
+// them alike), calling after_frame() once every simulation has solved a frame. One record list per simulation.
+std::vector<std::vector<FrameRecord>> playInTurn(const std::vector<std::unique_ptr<MuscleSimulation>>& simulations,
+                                                 const std::vector<Pose>& poses, const bench::NodeDefaults& defaults,
+                                                 const std::function<void()>& after_frame = {}) {
+  std::vector<GaitPlayer> players;
+  for (const auto& simulation : simulations) players.emplace_back(*simulation, defaults);
+  std::vector<std::vector<FrameRecord>> played(simulations.size());
+  for (const Pose& pose : poses) {
+    for (std::size_t v = 0; v < players.size(); ++v) played[v].push_back(players[v].solve(pose));
+    if (after_frame) after_frame();
+  }
+  return played;
+}
 
 std::vector<double> column(const std::vector<FrameRecord>& frames, double FrameRecord::*field) {
   std::vector<double> values;
@@ -172,7 +188,7 @@ int main(int argc, char** argv) {
   const double all_muscles = static_cast<double>(all.scene.muscles.size());
   bench::Progress progress("economy", static_cast<double>(frame_count) *
                                           (one_muscles + thigh13_muscles + all_muscles +  // (a)
-                                           2 * hip_muscles + 2 * thigh13_muscles +        // (b)
+                                           4 * hip_muscles + 2 * thigh13_muscles +        // (b)
                                            2 * thigh13_muscles));                         // (c)
   bench::JsonRecords records;
 
@@ -203,37 +219,46 @@ int main(int argc, char** argv) {
                       static_cast<double>(frame_count * static_cast<std::size_t>(simulation->system().muscleCount())));
   }
 
-  // (b) Skipping muscle-bone tests out of reach, on and off. Both runs play the same poses from the same model, so
+  // (b) Skipping muscle-bone tests out of reach, on and off, with each broad phase (a non-skipped pair costs the
+  // octree a root-box test, the hash grid a query per muscle sphere). The two runs of a pair are played frame by
+  // frame in turn, so load on this shared machine hits both alike; they play the same poses from the same model, so
   // their final states must agree exactly.
-  for (const Subset& subset : {Subset{"hip", &hip}, Subset{"thigh13", &thigh13}}) {
-    std::vector<Eigen::Matrix3Xd> final_positions;
+  struct ReachCase {
+    const Subset subset;
+    BroadPhaseKind broad_phase;
+  };
+  for (const ReachCase& reach : {ReachCase{{"hip", &hip}, BroadPhaseKind::octree},
+                                 ReachCase{{"hip", &hip}, BroadPhaseKind::hash_grid},
+                                 ReachCase{{"thigh13", &thigh13}, BroadPhaseKind::octree}}) {
+    std::vector<std::unique_ptr<MuscleSimulation>> simulations;
+    std::vector<double> build_ms;
     for (const bool skip : {true, false}) {
       SimulationSettings settings = defaults.simulation;
+      settings.collision.broad_phase = reach.broad_phase;
       settings.collision.skip_bones_out_of_reach = skip;
-      double build_ms = 0;
-      auto simulation = build(subset.bundled->scene, settings, build_ms);
-      GaitPlayer player(*simulation, defaults);
-      std::vector<FrameRecord> frames;
-      for (const Pose& pose : poses) frames.push_back(player.solve(pose));
-      final_positions.push_back(simulation->state().position);
-      const std::string variant = subset.name + (skip ? "_skip_out_of_reach" : "_test_every_bone");
-      records.begin();
-      addPlayedVariant(records, "bone_reach", variant, *simulation, frames, build_ms);
-      if (!skip) {
-        const double difference = (final_positions[0] - final_positions[1]).cwiseAbs().maxCoeff();
-        records.add("max_position_difference_m", difference);
-        std::printf("bone_reach %s: final positions differ by at most %.3g m from the skipping run\n",
-                    subset.name.c_str(), difference);
-      }
-      records.end();
-      std::printf("bone_reach %-32s frame %.1f ms, bone CD %.2f ms/frame, bones skipped (median) %.0f of %zu\n",
-                  variant.c_str(), bench::median(column(frames, &FrameRecord::wall_ms)),
-                  bench::median(statColumn(frames, [](const FrameStats& s) { return s.collision.bone_cd_ms; })),
-                  bench::median(statColumn(frames, [](const FrameStats& s) { return s.collision.bones_skipped; })),
-                  simulation->bones().size());
-      progress.finished("bone_reach " + variant,
-                        static_cast<double>(frame_count * static_cast<std::size_t>(simulation->system().muscleCount())));
+      build_ms.push_back(0);
+      simulations.push_back(build(reach.subset.bundled->scene, settings, build_ms.back()));
     }
+    const std::vector<std::vector<FrameRecord>> played = playInTurn(simulations, poses, defaults);
+    const double difference = (simulations[0]->state().position - simulations[1]->state().position).cwiseAbs().maxCoeff();
+    const std::string prefix = reach.subset.name + "_" + toString(reach.broad_phase);
+    for (std::size_t v = 0; v < simulations.size(); ++v) {
+      const std::string variant = prefix + (v == 0 ? "_skip_out_of_reach" : "_test_every_bone");
+      records.begin();
+      addPlayedVariant(records, "bone_reach", variant, *simulations[v], played[v], build_ms[v]);
+      records.add("broad_phase", std::string(toString(reach.broad_phase)));
+      records.add("max_position_difference_m", difference);
+      records.end();
+      std::printf("bone_reach %-36s frame %.1f ms (CPU %.1f), bone CD %.2f ms/frame, bones skipped (median) %.0f of "
+                  "%zu; final positions differ by %.3g m\n",
+                  variant.c_str(), bench::median(column(played[v], &FrameRecord::wall_ms)),
+                  bench::median(column(played[v], &FrameRecord::cpu_ms)),
+                  bench::median(statColumn(played[v], [](const FrameStats& s) { return s.collision.bone_cd_ms; })),
+                  bench::median(statColumn(played[v], [](const FrameStats& s) { return s.collision.bones_skipped; })),
+                  simulations[v]->bones().size(), difference);
+    }
+    progress.finished("bone_reach " + prefix, static_cast<double>(frame_count) * 2 *
+                                                  static_cast<double>(simulations[0]->system().muscleCount()));
   }
 
   // (c) Boundary-only collision against every particle colliding. The two models share their particles (same
@@ -243,36 +268,34 @@ int main(int argc, char** argv) {
     SimulationSettings every_settings = defaults.simulation;
     every_settings.model.boundary_fibre_fraction = 0;  // every fibre, hence every particle, collides
     double boundary_build_ms = 0, every_build_ms = 0;
-    auto boundary_only = build(thigh13.scene, defaults.simulation, boundary_build_ms);
-    auto every_particle = build(thigh13.scene, every_settings, every_build_ms);
-    GaitPlayer boundary_player(*boundary_only, defaults), every_player(*every_particle, defaults);
-    std::vector<FrameRecord> boundary_frames, every_frames;
+    std::vector<std::unique_ptr<MuscleSimulation>> simulations;
+    simulations.push_back(build(thigh13.scene, defaults.simulation, boundary_build_ms));
+    simulations.push_back(build(thigh13.scene, every_settings, every_build_ms));
     // Penetration into bone (m) of [variant] measured with [sphere set]: 0 boundary spheres, 1 every-particle ones.
     double penetration[2][2] = {{0, 0}, {0, 0}};
-    for (const Pose& pose : poses) {
-      boundary_frames.push_back(boundary_player.solve(pose));
-      every_frames.push_back(every_player.solve(pose));
-      const ParticleState* states[2] = {&boundary_only->state(), &every_particle->state()};
-      const CollisionWorld* worlds[2] = {boundary_only->collisionWorld(), every_particle->collisionWorld()};
-      for (int v = 0; v < 2; ++v)
-        for (int w = 0; w < 2; ++w)
-          penetration[v][w] = std::max(penetration[v][w], worlds[w]->measure(*states[v]).max_penetration_muscle_bone_m);
-    }
+    const std::vector<std::vector<FrameRecord>> played_in_turn =
+        playInTurn(simulations, poses, defaults, [&] {
+          for (std::size_t v = 0; v < 2; ++v)
+            for (std::size_t w = 0; w < 2; ++w)
+              penetration[v][w] = std::max(penetration[v][w], simulations[w]->collisionWorld()
+                                                                  ->measure(simulations[v]->state())
+                                                                  .max_penetration_muscle_bone_m);
+        });
     const char* names[2] = {"boundary_only", "every_particle"};
-    const std::vector<FrameRecord>* played[2] = {&boundary_frames, &every_frames};
-    const MuscleSimulation* simulations[2] = {boundary_only.get(), every_particle.get()};
     const double build_ms[2] = {boundary_build_ms, every_build_ms};
-    for (int v = 0; v < 2; ++v) {
+    for (std::size_t v = 0; v < 2; ++v) {
       records.begin();
-      addPlayedVariant(records, "collision_particles", names[v], *simulations[v], *played[v], build_ms[v]);
+      addPlayedVariant(records, "collision_particles", names[v], *simulations[v],
+                       played_in_turn[v], build_ms[v]);
       records.add("penetration_boundary_spheres_mm", kMillimetresPerMetre * penetration[v][0]);
       records.add("penetration_every_particle_spheres_mm", kMillimetresPerMetre * penetration[v][1]);
       records.end();
       std::printf("collision_particles %-15s %6d spheres: frame %.1f ms, collision %.1f ms/frame, max bone "
                   "penetration %.2f mm (boundary spheres) / %.2f mm (every-particle spheres)\n",
                   names[v], simulations[v]->collisionWorld()->muscleSphereCount(),
-                  bench::median(column(*played[v], &FrameRecord::wall_ms)),
-                  bench::median(statColumn(*played[v], [](const FrameStats& s) { return s.solve.collision_ms; })),
+                  bench::median(column(played_in_turn[v], &FrameRecord::wall_ms)),
+                  bench::median(statColumn(played_in_turn[v],
+                                           [](const FrameStats& s) { return s.solve.collision_ms; })),
                   kMillimetresPerMetre * penetration[v][0], kMillimetresPerMetre * penetration[v][1]);
     }
     progress.finished("collision_particles", static_cast<double>(frame_count) * 2 * thigh13_muscles);
