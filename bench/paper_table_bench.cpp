@@ -175,6 +175,10 @@ int main(int argc, char** argv) {
         bone_sphere_total += static_cast<double>(scene.bone_spheres[b].size());
       }
       records.add("bone_spheres", bone_sphere_total);
+      std::string sphere_counts;  // the same per bone in one field, whatever the scene's bone names
+      for (std::size_t b = 0; b < scene.bone_spheres.size(); ++b)
+        sphere_counts += (b ? " " : "") + scene.bone_names[b] + ":" + std::to_string(scene.bone_spheres[b].size());
+      records.add("bone_sphere_counts", sphere_counts);
       records.add("bones", static_cast<double>(scene.bone_spheres.size()));
       records.add("build_ms", build_ms);
       records.add("poses", static_cast<double>(scene.pose_transforms.size()));
@@ -192,10 +196,7 @@ int main(int argc, char** argv) {
                   scene_name.c_str(), column.particles_per_fibre, static_cast<long>(scene.system->particleCount()),
                   scene.system->springs.size(), result.boundary_particles, m.mss_ms, m.muscle_cd_ms, m.bone_cd_ms,
                   m.total_ms, column.mss_ms, column.muscle_cd_ms, column.bone_cd_ms, column.total_ms, ratio);
-      std::string spheres = "  bone spheres:";
-      for (std::size_t b = 0; b < scene.bone_spheres.size(); ++b)
-        spheres += " " + scene.bone_names[b] + " " + std::to_string(scene.bone_spheres[b].size());
-      std::printf("%s\n", spheres.c_str());
+      std::printf("  bone spheres: %s\n", sphere_counts.c_str());
       progress.finished(scene_name + " " + std::to_string(column.particles_per_fibre) + " particles/fibre",
                         column.particles_per_fibre);
     }
