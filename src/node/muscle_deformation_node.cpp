@@ -45,18 +45,6 @@ double median(std::vector<double> values) {
   return *middle;
 }
 
-// Largest motion of any bone between two poses: displacement of its rest centroid and rotation angle.
-void poseChange(const BoneTransforms& a, const BoneTransforms& b, const std::vector<Eigen::Vector3d>& centres,
-                double& translation_m, double& rotation_rad) {
-  translation_m = 0;
-  rotation_rad = 0;
-  for (std::size_t i = 0; i < a.size() && i < b.size(); ++i) {
-    translation_m = std::max(translation_m, (a[i] * centres[i] - b[i] * centres[i]).norm());
-    const Eigen::AngleAxisd delta(a[i].linear() * b[i].linear().transpose());
-    rotation_rad = std::max(rotation_rad, std::abs(delta.angle()));
-  }
-}
-
 }  // namespace
 
 MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const ros::NodeHandle& private_node)
@@ -88,10 +76,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
     throw std::runtime_error(std::string("cannot build the muscle model (scene ") + settings_.scene_path +
                              "): " + e.what());
   }
-  for (const Bone& bone : stream_->simulation().bones()) {
-    const Vertices& v = bone.surface.vertices;
-    bone_centres_.push_back(v.cols() ? Eigen::Vector3d(v.rowwise().mean()) : Eigen::Vector3d::Zero());
-  }
+  bone_centres_ = boneRestCentroids(stream_->simulation().bones());
   const double startup_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
@@ -235,8 +220,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const BoneTransforms transforms = boneTransformsOf(stream_->simulation().bones(), pose);
   bool reset = false;
   if (has_previous_) {
-    double moved_m = 0, turned_rad = 0;
-    poseChange(transforms, previous_transforms_, bone_centres_, moved_m, turned_rad);
+    const BoneMotion motion = largestBoneMotion(previous_transforms_, transforms, bone_centres_);
+    const double moved_m = motion.translation_m, turned_rad = motion.rotation_rad;
     if (link_poses.stamp < previous_stamp_) {
       ROS_INFO_STREAM("muscle_deformation: time jumped back from " << previous_stamp_ << " to " << link_poses.stamp
                                                                    << ": cold start");
