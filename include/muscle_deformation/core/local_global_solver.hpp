@@ -95,7 +95,9 @@ class LocalGlobalSolver {
 
   // Iterates until the stopping rule is met; `after_update` is called after every global step (collision). Fixed
   // particles keep the positions `state` holds on entry (the pose): only the right-hand side depends on them, so the
-  // factorisation is reused across solves. Allocates nothing per iteration.
+  // factorisation is reused across solves. Allocates nothing per iteration. The iteration is implicit and needs no
+  // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
+  // stats say `diverged`.
   SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {});
 
   const LocalGlobalSettings& settings() const { return settings_; }
@@ -145,6 +147,7 @@ class LocalGlobalSolver {
   Eigen::MatrixXd fixed_rhs_, rhs_, free_current_, free_previous_, free_next_, chebyshev_older_, inertial_target_,
       inertial_prediction_;
   Eigen::MatrixXd fixed_position_;  // all particles x 3, only fixed rows used
+  Eigen::Matrix3Xd entry_position_, entry_previous_position_;  // the state a solve started from, for recovery
 };
 
 }  // namespace muscle_deformation
