@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -118,6 +119,39 @@ void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const Fr
 
 }  // namespace
 
+TEST(DivergenceMonitor, FiresOnGrowingReversingStepsAboveTheBoundOnly) {
+  const double rest_m = 0.01;  // bound: a quarter of it
+  DivergenceMonitor unstable(rest_m);
+  // An unstable Verlet mode: every step larger than the last and reversed.
+  EXPECT_FALSE(unstable.diverged(1e-4, 0));
+  EXPECT_FALSE(unstable.diverged(1e-3, -1));
+  EXPECT_FALSE(unstable.diverged(1e-2, -1));  // above the bound after two growing reversals only
+  EXPECT_TRUE(unstable.diverged(1e-1, -1));
+
+  DivergenceMonitor small(rest_m);  // the same pattern while still far below the bound is left alone
+  for (const double step_m : {1e-7, 2e-7, 4e-7, 8e-7, 1.6e-6}) EXPECT_FALSE(small.diverged(step_m, -1));
+}
+
+TEST(DivergenceMonitor, LeavesAcceleratingSolvesAndSingleJumpsAlone) {
+  DivergenceMonitor accelerating(0.01);
+  // A cold start speeding up: large and growing steps, but all in the same direction.
+  for (double step_m = 1e-3; step_m < 1.0; step_m *= 2) EXPECT_FALSE(accelerating.diverged(step_m, +1));
+  DivergenceMonitor pushed(0.01);
+  // A collision push: one large reversed step, then the motion settles.
+  EXPECT_FALSE(pushed.diverged(1e-4, +1));
+  EXPECT_FALSE(pushed.diverged(0.05, -1));
+  EXPECT_FALSE(pushed.diverged(0.01, -1));
+  EXPECT_FALSE(pushed.diverged(0.02, -1));
+  EXPECT_FALSE(pushed.diverged(0.005, -1));
+}
+
+TEST(DivergenceMonitor, NonFiniteStepsAlwaysCount) {
+  DivergenceMonitor monitor(0.01);
+  EXPECT_TRUE(monitor.diverged(std::numeric_limits<double>::infinity(), 0));
+  EXPECT_TRUE(monitor.diverged(std::nan(""), 0));
+  EXPECT_TRUE(monitor.diverged(1e-3, std::nan("")));
+}
+
 TEST(Stability, PoseJumpFromRestToNinetyDegreesHipFlexionInOneWarmFrame) {
   const SyntheticScene scene = smallThigh();
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
@@ -153,6 +187,12 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
   EXPECT_LE(rmsDistance(simulation.state().position, converged),
             rmsDistance(pretransformOf(simulation, pose), converged));
+  std::printf("%d recoveries, step now %.3f x the stability bound, RMS to converged %.2f mm (pre-transform %.2f mm), "
+              "bone penetration %.2f mm\n",
+              stats.solve.divergence_recoveries, stats.solve.time_step_s / stable_s,
+              rmsDistance(simulation.state().position, converged) * 1e3,
+              rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
+              stats.collision.max_penetration_muscle_bone_m * 1e3);
 
   // Recovery restarts from exactly the entry state: the result is the one a solve with the final step from the
   // start gives.
@@ -200,6 +240,12 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   EXPECT_LE(rmsDistance(simulation.state().position, converged),
             rmsDistance(pretransformOf(simulation, pose), converged));
   EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, medianSphereRadius(simulation.system()));
+  std::printf("%d recoveries, step now %.4f x the previous one, RMS to converged %.2f mm (pre-transform %.2f mm), "
+              "bone penetration %.2f mm\n",
+              stats.solve.divergence_recoveries, stats.solve.time_step_s / previous_step_s,
+              rmsDistance(simulation.state().position, converged) * 1e3,
+              rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
+              stats.collision.max_penetration_muscle_bone_m * 1e3);
 }
 
 TEST(Stability, EveryAttemptDivergingLeavesTheEntryStateAndSaysSo) {
