@@ -279,6 +279,8 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
   entry_position_ = state.position;
   entry_previous_position_ = state.previous_position;
 
+  // Retries share the solve's time budget (StoppingRule::time_budget): a budget spent on a diverged attempt leaves
+  // the retry little time, which keeps the frame's cost bounded.
   while (!attempt(state, after_update, stats, solve_start)) {
     state.position = entry_position_;
     state.previous_position = entry_previous_position_;

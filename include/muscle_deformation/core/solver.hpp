@@ -85,10 +85,12 @@ struct SolveStats {
   double time_step_s = 0;             // the solver's fixed step (upper clamp of the adaptive one) at the end, s
 };
 
-// Tells a diverging explicit solve from a legitimate one, iteration by iteration. An unstable mode of damped Verlet
-// with positive stiffnesses always has a real eigenvalue below -1 (for x' = x + keep (x - x_prev) + F dt^2 / m the
-// characteristic polynomial is positive at +1 for any dt), so divergence makes every particle reverse its direction
-// of motion each iteration while the steps grow. A solve that is merely moving a lot (a cold start accelerating from
+// Tells a diverging explicit solve from a legitimate one, iteration by iteration. For a mode of frequency w, damped
+// Verlet (x' = x + keep (x - x_prev) + F dt^2 / m, keep = 1 - c dt / m <= 1) has the characteristic polynomial
+// l^2 - (1 + keep - w^2 dt^2) l + keep: it is w^2 dt^2 >= 0 at l = 1 and its roots multiply to keep <= 1, so no root
+// lies beyond +1 and complex roots have |l|^2 = keep <= 1. Whatever makes the step too long (stiffness or damping), the
+// growing mode has a real eigenvalue below -1: every particle reverses its direction of motion each iteration while
+// the steps grow. A solve that is merely moving a lot (a cold start accelerating from
 // the pre-transform, a collision push) keeps its direction or grows only once. Divergence is declared when the step
 // is non-finite, or when for `kGrowingReversals` consecutive iterations the mean step grew and reversed direction
 // (negative summed dot product of successive steps) and it now exceeds `kStepFraction` of the mean rest spring
