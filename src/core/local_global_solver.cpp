@@ -161,6 +161,8 @@ LocalGlobalSolver::LocalGlobalSolver(const MassSpringSystem& system, LocalGlobal
   buildAndFactorise();
   const Eigen::Index n = system_.particleCount();
   fixed_position_.setZero(n, 3);
+  entry_position_.setZero(3, n);
+  entry_previous_position_.setZero(3, n);
   fixed_rhs_.setZero(free_count_, 3);
   rhs_.setZero(free_count_, 3);
   free_current_.setZero(free_count_, 3);
@@ -523,6 +525,11 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
     const double displacement = (free_current_ - free_previous_).rowwise().norm().sum();
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
+    if (!std::isfinite(stats.mean_displacement_m) || !std::isfinite(energy)) {
+      stats.diverged = true;  // finishSolve puts the entry state back
+      break;
+    }
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
     if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
       stats.stopping_rule_met = true;
       break;
@@ -539,6 +546,8 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
                                 " expected)");
   SolveStats stats;
   const auto solve_start = Clock::now();
+  entry_position_ = state.position;
+  entry_previous_position_ = state.previous_position;
   // The pose enters only here: the fixed particles' coupling terms, constant over the solve.
   for (Eigen::Index i = 0; i < n; ++i)
     if (system_.is_fixed[static_cast<std::size_t>(i)]) fixed_position_.row(i) = state.position.col(i).transpose();
@@ -605,6 +614,11 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
     runAfterUpdateHook(after_update, state, stats);
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
+    if (!std::isfinite(stats.mean_displacement_m)) {
+      stats.diverged = true;
+      break;
+    }
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
     if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
       stats.stopping_rule_met = true;
       break;
@@ -614,10 +628,19 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
 }
 
 SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stats, Clock::time_point solve_start) const {
+  // The last collision hook ran after the last displacement was measured.
+  if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
+  if (stats.diverged) {
+    state.position = entry_position_;
+    state.previous_position = entry_previous_position_;
+    stats.mean_displacement_m = 0;
+    stats.peak_mean_displacement_m = 0;
+  }
   // The quasi-static result is an equilibrium: leave it at rest.
   if (settings_.quasi_static) state.previous_position = state.position;
-  if (settings_.stopping_rule == StoppingRule::iterations) stats.stopping_rule_met = true;
+  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged) stats.stopping_rule_met = true;
   stats.last_dt_s = stats.min_dt_s = stats.max_dt_s = settings_.quasi_static ? 0.0 : settings_.time_step_s;
+  stats.time_step_s = stats.last_dt_s;
   stats.total_ms = millisecondsSince(solve_start);
   recordSpringMetrics(system_.springs, state.position, stats);
   return stats;

@@ -247,7 +247,7 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const StartMode start = settings_.stream.warm_start ? StartMode::warm : StartMode::cold;
   const PipelineFrame& frame = stream_->solve(pose, start, want_surfaces || want_surface_markers,
                                               want_stats && settings_.stream.stats_metrics);
-  has_previous_ = frame.solve.finite;
+  has_previous_ = frame.solve.finite && !frame.solve.solve.diverged;
   previous_stamp_ = link_poses.stamp;
   previous_transforms_ = transforms;
 
@@ -258,6 +258,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     ++window_solved_;
     if (reset) ++counters_.resets;
     if (!frame.solve.finite) ++counters_.non_finite;
+    counters_.divergence_recoveries += static_cast<std::uint32_t>(frame.solve.solve.divergence_recoveries);
+    if (frame.solve.solve.diverged) ++counters_.diverged;
     window_solve_ms_.push_back(frame.solve.solve.total_ms);
     stats.poses_received = counters_.received;
     stats.poses_solved = counters_.solved;
@@ -266,6 +268,15 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     stats.tf_failures = counters_.tf_failures;
     stats.resets = counters_.resets;
   }
+  if (frame.solve.solve.diverged)
+    ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged at every time step down to "
+                                                                       << frame.solve.solve.time_step_s
+                                                                       << " s; publishing its starting state, next frame starts cold");
+  else if (frame.solve.solve.divergence_recoveries > 0)
+    ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged and was re-run "
+                                                                      << frame.solve.solve.divergence_recoveries
+                                                                      << " time(s) with a halved time step, now "
+                                                                      << frame.solve.solve.time_step_s << " s");
   if (!frame.solve.finite)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp
                                                                        << " gave non-finite positions; next frame starts cold");
@@ -426,14 +437,20 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
                                                                 pipeline.descriptions(), header);
   response.surfaces.header = header;
   response.stats = statsToMessage(frame, solver, header);
-  response.success = frame.solve.finite;
+  response.success = frame.solve.finite && !frame.solve.solve.diverged;
   std::ostringstream message;
   if (!frame.solve.finite) {
     message << "the solve gave non-finite particle positions";
+  } else if (frame.solve.solve.diverged) {
+    message << "the solve diverged at every time step down to " << frame.solve.solve.time_step_s
+            << " s; the particles are its starting state";
   } else {
     message << "solved " << system.muscleCount() << " muscles, " << system.particleCount() << " particles in "
             << frame.solve.solve.iterations << " iterations, " << frame.solve.solve.total_ms << " ms ("
             << (frame.solve.warm_started ? "warm" : "cold") << " start)";
+    if (frame.solve.solve.divergence_recoveries > 0)
+      message << " after " << frame.solve.solve.divergence_recoveries
+              << " divergence recoveries (time step halved to " << frame.solve.solve.time_step_s << " s)";
     if (!frame.has_surfaces) message << "; no surfaces: " << pipeline.skinningProblem();
   }
   response.message = message.str();
@@ -477,6 +494,8 @@ void MuscleDeformationNode::diagnoseSolveTime(diagnostic_updater::DiagnosticStat
   status.add("Max solve (ms)", max_ms);
   status.add("Frame budget (ms)", budget_ms);
   status.add("Non-finite frames (total)", counters_.non_finite);
+  status.add("Divergence recoveries (total)", counters_.divergence_recoveries);
+  status.add("Diverged frames (total)", counters_.diverged);
 }
 
 void MuscleDeformationNode::diagnosePoses(diagnostic_updater::DiagnosticStatusWrapper& status) {

@@ -159,10 +159,10 @@ TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
     verlet_settings.max_iterations = 200;
     VerletSolver verlet(system, verlet_settings);
     ParticleState verlet_state = start;
-    verlet.solve(verlet_state);
-    const bool verlet_blew_up =
-        !verlet_state.position.allFinite() || springEnergy(system, verlet_state.position) > 1e3 * start_energy;
-    EXPECT_TRUE(verlet_blew_up) << "Verlet at " << factor << "x its stability bound";
+    // Verlet diverges at these steps; it now notices, restores its start and retries with halved steps.
+    const SolveStats verlet_stats = verlet.solve(verlet_state);
+    EXPECT_GT(verlet_stats.divergence_recoveries, 0) << "Verlet at " << factor << "x its stability bound";
+    EXPECT_LT(verlet_stats.time_step_s, bound * 2) << "Verlet at " << factor << "x its stability bound";
 
     LocalGlobalSettings settings;
     settings.quasi_static = false;

@@ -103,7 +103,9 @@ class LocalGlobalSolver {
 
   // Iterates until the stopping rule is met; `after_update` is called after every global step (collision). Fixed
   // particles keep the positions `state` holds on entry (the pose): only the right-hand side depends on them, so the
-  // factorisation is reused across solves. Allocates nothing per iteration.
+  // factorisation is reused across solves. Allocates nothing per iteration. The iteration is implicit and needs no
+  // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
+  // stats say `diverged`.
   SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {});
 
   const LocalGlobalSettings& settings() const { return settings_; }
@@ -177,6 +179,7 @@ class LocalGlobalSolver {
   Eigen::MatrixXd gradient_, previous_gradient_, trial_gradient_, direction_, trial_;
   std::vector<Eigen::MatrixXd> history_step_, history_gradient_change_;  // s_i, y_i of the last lbfgs_history steps
   std::vector<double> history_inverse_curvature_, history_alpha_;        // 1 / (s_i . y_i), two-loop coefficients
+  Eigen::Matrix3Xd entry_position_, entry_previous_position_;  // the state a solve started from, for recovery
 };
 
 }  // namespace muscle_deformation
