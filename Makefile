@@ -1,6 +1,7 @@
 # User commands. Each does its own set-up on a fresh Debian 12 machine (missing packages, catkin workspace).
 #   make test   build everything and run every test; non-zero exit on any failure
-#   make bench  build in Release and run the benchmarks; writes docs/BENCHMARKS.md and out/bench/*.json
+#   make bench  build in Release and run the benchmarks; writes docs/BENCHMARKS.md, docs/img/*.png, out/bench/*.json
+#               (BENCH_FLAGS=--quick: a smoke run with fewer repetitions; its report is not for quoting)
 #   make demo   gait playback through the node, rviz headless under Xvfb; writes out/demo/stats.csv, out/demo/rviz.png
 SHELL := /bin/bash
 ROOT := $(CURDIR)
@@ -28,8 +29,10 @@ test: build
 bench: build
 	@$(CATKIN_MAKE) benchmarks
 	@mkdir -p $(ROOT)/out/bench
-	@for bench in $(WS)/devel/lib/muscle_deformation/*_bench; do \
-	  echo "== $$(basename $$bench)"; "$$bench" --out $(ROOT)/out/bench || exit 1; done
+	@start=$$(date +%s); for bench in $(WS)/devel/lib/muscle_deformation/*_bench; do \
+	  echo "== $$(basename $$bench) (make bench running for $$(( $$(date +%s) - start )) s)"; \
+	  "$$bench" --out $(ROOT)/out/bench $(BENCH_FLAGS) || exit 1; done; \
+	  echo "== all benchmarks done in $$(( $$(date +%s) - start )) s"
 	@$(ROOT)/tools/bench_report.py $(ROOT)/out/bench $(ROOT)/docs/BENCHMARKS.md
 
 demo: build

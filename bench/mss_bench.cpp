@@ -1,6 +1,7 @@
 // MSS update time per iteration on the synthetic thigh, sized like the GRAPP paper's Table 1 scene:
 // 13 muscles x 64 fibres x {20, 40, 60, 80} particles per fibre, 18 nearest-neighbour springs, one thread.
 #include "bench_util.hpp"
+#include "paper_figures.hpp"
 
 #include "muscle_deformation/core/model_builder.hpp"
 #include "muscle_deformation/core/rigid_pretransform.hpp"
@@ -42,19 +43,18 @@ int main(int argc, char** argv) {
   const SyntheticScene scene = makeSyntheticThigh(13, 8);
   const Pose pose = syntheticThighPose(0.5, 0.8);  // a bent leg: the springs are far from rest
   const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
-  const double paper_ms[] = {37.32, 79.94, 121.06, 161.40};  // GRAPP Table 1 MSS: 18.66 .. 80.70 s / 500 iterations
+  const std::array<bench::PaperTableColumn, 4> paper = bench::paperTable1();
 
   const double bandwidth_gbs = measureTriadBandwidthGBs(options.quick ? 3 : 9);
   std::printf("triad memory bandwidth (one thread): %.1f GB/s\n", bandwidth_gbs);
   bench::JsonRecords records;
-  const int per_fibre[] = {20, 40, 60, 80};
   const int repetitions = options.quick ? 3 : 15;
   const int iterations_per_run = options.quick ? 5 : 40;
   std::printf("%-8s %9s %9s %11s %14s %14s %14s %10s %8s\n", "per_fib", "particles", "springs", "bytes/part",
               "fixed dt ms/it", "(cpu ms/it)", "adapt dt ms/it", "paper ms/it", "speedup");
   for (int k = 0; k < 4; ++k) {
     ModelSettings model;
-    model.particles_per_fibre = per_fibre[k];
+    model.particles_per_fibre = paper[k].particles_per_fibre;
     model.nearest_neighbours = 18;
     ModelBuildReport report;
     const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model, &report);
@@ -85,11 +85,11 @@ int main(int argc, char** argv) {
         (system.modelBytes() + VerletSolver(system, SolverSettings{}).solverBytes() + state_bytes) /
         static_cast<std::size_t>(system.particleCount());
 
-    std::printf("%-8d %9ld %9zu %11zu %14.3f %14.3f %14.3f %10.1f %7.0fx\n", per_fibre[k],
+    std::printf("%-8d %9ld %9zu %11zu %14.3f %14.3f %14.3f %10.1f %7.0fx\n", paper[k].particles_per_fibre,
                 static_cast<long>(system.particleCount()), system.springs.size(), bytes_per_particle, fixed_ms,
-                fixed_cpu_ms, adaptive_ms, paper_ms[k], paper_ms[k] / fixed_ms);
+                fixed_cpu_ms, adaptive_ms, paper[k].mss_ms, paper[k].mss_ms / fixed_ms);
     records.begin();
-    records.add("particles_per_fibre", per_fibre[k]);
+    records.add("particles_per_fibre", paper[k].particles_per_fibre);
     records.add("particles", static_cast<double>(system.particleCount()));
     records.add("springs", static_cast<double>(system.springs.size()));
     records.add("mss_ms_per_iteration", fixed_ms);
@@ -97,7 +97,7 @@ int main(int argc, char** argv) {
     records.add("mss_adaptive_dt_ms_per_iteration", adaptive_ms);
     records.add("mss_adaptive_dt_cpu_ms_per_iteration", adaptive_cpu_ms);
     records.add("bytes_per_particle", static_cast<double>(bytes_per_particle));
-    records.add("paper_mss_ms_per_iteration", paper_ms[k]);
+    records.add("paper_mss_ms_per_iteration", paper[k].mss_ms);
     records.add("build_ms", report.build_ms);
     records.add("bytes_moved_per_iteration", bytesPerIteration(system));
     records.add("triad_bandwidth_gbs", bandwidth_gbs);

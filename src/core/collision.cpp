@@ -166,15 +166,17 @@ struct CollisionWorld::Impl {
   // For every bone within reach of some muscle and every muscle whose bounds overlap it, fills `pairs` with their
   // overlapping spheres and calls visit(muscle, bone). Returns the number of bones skipped as out of reach.
   template <class Visit>
-  int forEachMuscleBoneOverlap(double margin, Visit&& visit) {
+  int forEachMuscleBoneOverlap(double margin, bool skip_out_of_reach, Visit&& visit) {
     int skipped = 0;
     for (int b = 0; b < bone_count; ++b) {
-      if (!boneReachesAnyMuscle(b, margin)) {
+      if (skip_out_of_reach && !boneReachesAnyMuscle(b, margin)) {
         ++skipped;
         continue;
       }
       for (int m = 0; m < muscle_count; ++m) {
-        if (!boxesOverlap(bone_box[static_cast<std::size_t>(b)], muscle_box[static_cast<std::size_t>(m)])) continue;
+        if (skip_out_of_reach &&
+            !boxesOverlap(bone_box[static_cast<std::size_t>(b)], muscle_box[static_cast<std::size_t>(m)]))
+          continue;
         broad->findPairs(m, muscle_count + b, pairs);
         visit(m, b);
       }
@@ -296,7 +298,8 @@ int CollisionWorld::resolve(ParticleState& state) {
   stats_.muscle_cd_ms += millisecondsSince(start);
 
   start = Clock::now();
-  const int skipped = w.forEachMuscleBoneOverlap(settings_.bone_reach_margin_m, [&](int m, int b) {
+  const int skipped = w.forEachMuscleBoneOverlap(
+      settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
     pairs_found += static_cast<std::int64_t>(w.pairs.size());
     for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
   });
@@ -334,7 +337,8 @@ CollisionStats CollisionWorld::measure(const ParticleState& state) const {
       continue;
     muscle_sum.add(w.penetration(w.muscle_spheres[a], p.first, w.muscle_spheres[b], p.second));
   }
-  const int skipped = w.forEachMuscleBoneOverlap(settings_.bone_reach_margin_m, [&](int m, int b) {
+  const int skipped = w.forEachMuscleBoneOverlap(
+      settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
     for (const SpherePair& pair : w.pairs) {
       if (w.sphere_fixed[static_cast<std::size_t>(m)][static_cast<std::size_t>(pair.first)]) continue;
       bone_sum.add(w.penetration(w.muscle_spheres[static_cast<std::size_t>(m)], pair.first,

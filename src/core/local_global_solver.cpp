@@ -77,6 +77,9 @@ std::string validate(const LocalGlobalSettings& s) {
   if (!(s.max_edge_over_spring > 0)) return "max_edge_over_spring must be positive";
   if (!(s.chebyshev_rho >= 0 && s.chebyshev_rho < 1)) return "chebyshev_rho must be in [0, 1)";
   if (s.chebyshev_delay < 1) return "chebyshev_delay must be >= 1";
+  if (s.lbfgs_history < 0) return "lbfgs_history must be >= 0";
+  if (s.lbfgs_history > 0 && !s.quasi_static) return "lbfgs_history needs the quasi-static mode";
+  if (s.lbfgs_history > 0 && s.chebyshev_rho > 0) return "lbfgs_history and chebyshev_rho exclude each other";
   if (s.max_iterations < 0) return "max_iterations must be >= 0";
   if (!(s.displacement_tolerance_m >= 0) || !(s.time_budget_ms >= 0)) return "tolerances must be non-negative";
   return {};
@@ -158,6 +161,8 @@ LocalGlobalSolver::LocalGlobalSolver(const MassSpringSystem& system, LocalGlobal
   buildAndFactorise();
   const Eigen::Index n = system_.particleCount();
   fixed_position_.setZero(n, 3);
+  entry_position_.setZero(3, n);
+  entry_previous_position_.setZero(3, n);
   fixed_rhs_.setZero(free_count_, 3);
   rhs_.setZero(free_count_, 3);
   free_current_.setZero(free_count_, 3);
@@ -166,6 +171,15 @@ LocalGlobalSolver::LocalGlobalSolver(const MassSpringSystem& system, LocalGlobal
   chebyshev_older_.setZero(free_count_, 3);
   inertial_target_.setZero(free_count_, 3);
   inertial_prediction_.setZero(free_count_, 3);
+  if (settings_.lbfgs_history > 0) {
+    for (Eigen::MatrixXd* buffer : {&gradient_, &previous_gradient_, &trial_gradient_, &direction_, &trial_})
+      buffer->setZero(free_count_, 3);
+    const auto history = static_cast<std::size_t>(settings_.lbfgs_history);
+    history_step_.assign(history, Eigen::MatrixXd::Zero(free_count_, 3));
+    history_gradient_change_.assign(history, Eigen::MatrixXd::Zero(free_count_, 3));
+    history_inverse_curvature_.assign(history, 0.0);
+    history_alpha_.assign(history, 0.0);
+  }
 }
 
 Eigen::Index LocalGlobalSolver::factorNonZeros() const { return factor_.matrixL().nestedExpression().nonZeros(); }
@@ -293,6 +307,14 @@ void LocalGlobalSolver::buildAndFactorise() {
   }
   Eigen::SparseMatrix<double> matrix(free_count_, free_count_);
   matrix.setFromTriplets(free_free.begin(), free_free.end());
+  if (settings_.lbfgs_history > 0) {
+    // The proximal weights only shape the preconditioner; the energy's Hessian part is L alone.
+    Eigen::VectorXd proximal(free_count_);
+    for (Eigen::Index f = 0; f < free_count_; ++f) proximal[f] = inertia_weight_[f] + contact_weight_[f];
+    Eigen::SparseMatrix<double> proximal_matrix(free_count_, free_count_);
+    proximal_matrix = Eigen::SparseMatrix<double>(proximal.asDiagonal());
+    stiffness_free_ = matrix - proximal_matrix;
+  }
   free_fixed_.resize(free_count_, n);
   free_fixed_.setFromTriplets(free_fixed.begin(), free_fixed.end());
   factor_.compute(matrix);
@@ -302,16 +324,17 @@ void LocalGlobalSolver::buildAndFactorise() {
   factorisation_ms_ = millisecondsSince(start);
 }
 
-void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
-  // Local step, fused with the assembly of the right-hand side: each spring's optimal auxiliary vector d is its
-  // current direction at rest length; it enters as k d for the first particle and -k d for the second.
-  rhs_ = inertial_target_ + fixed_rhs_;
-  const double* x = state.position.data();
-  double* r = rhs_.data();
-  const Eigen::Index ld = free_count_;  // column stride of rhs_
+double LocalGlobalSolver::addProjections(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& rhs) const {
+  // Each spring's optimal auxiliary vector d is its current direction at rest length; it enters as k d for the first
+  // particle and -k d for the second.
+  double energy = 0;
+  const double* x = position.data();
+  double* r = rhs.data();
+  const Eigen::Index ld = free_count_;  // column stride of rhs
   for (const Spring& s : springs_) {
     const double dx = x[3 * s.a] - x[3 * s.b], dy = x[3 * s.a + 1] - x[3 * s.b + 1], dz = x[3 * s.a + 2] - x[3 * s.b + 2];
     const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
+    energy += 0.5 * s.stiffness * (length - s.rest_length) * (length - s.rest_length);
     // Coincident particles give no direction; d = 0 pulls them together for one iteration and they separate after.
     const double scale = length > 0 ? s.stiffness * s.rest_length / length : 0.0;
     if (s.fa >= 0) {
@@ -330,13 +353,13 @@ void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
   const double low = 1.0 - settings_.volume_tolerance, high = 1.0 + settings_.volume_tolerance;
   for (const VolumeTerm& term : volume_terms_) {
     Eigen::Matrix3d edges;
-    for (int j = 0; j < 3; ++j)
-      edges.col(j) = state.position.col(term.vertex[j + 1]) - state.position.col(term.vertex[0]);
+    for (int j = 0; j < 3; ++j) edges.col(j) = position.col(term.vertex[j + 1]) - position.col(term.vertex[0]);
     const Eigen::Matrix3d deformation = edges * term.rest_inverse;
     const double determinant = deformation.determinant();
     Eigen::Matrix3d target = deformation;
     if (!(determinant >= low && determinant <= high))
       target = projectDeterminant(deformation, determinant < low ? low : high);
+    energy += 0.5 * term.weight * (deformation - target).squaredNorm();
     const Eigen::Matrix<double, 3, 4> g = gradientOperator(term.rest_inverse);
     const Eigen::Matrix<double, 3, 4> force = term.weight * target * g;
     for (int j = 0; j < 4; ++j) {
@@ -347,8 +370,172 @@ void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
       r[f + 2 * ld] += force(2, j);
     }
   }
+  return energy;
+}
+
+void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
+  rhs_ = inertial_target_ + fixed_rhs_;
+  addProjections(state.position, rhs_);
   // Global step: the prefactored matrix, three right-hand sides.
-  free_next_ = factor_.solve(rhs_);
+  solvePrefactored(rhs_, free_next_);
+}
+
+void LocalGlobalSolver::solvePrefactored(const Eigen::MatrixXd& rhs, Eigen::MatrixXd& result) {
+  const Eigen::SparseMatrix<double>& lower = factor_.matrixL().nestedExpression();  // strictly lower, unit diagonal
+  const Eigen::VectorXd& diagonal = factor_.vectorD();
+  const auto* permutation = factor_.permutationP().indices().data();
+  const auto* column_start = lower.outerIndexPtr();
+  const auto* row = lower.innerIndexPtr();
+  const double* value = lower.valuePtr();
+  const Eigen::Index n = free_count_;
+  permuted_solution_.resize(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) permuted_solution_.col(permutation[i]) = rhs.row(i).transpose();
+  double* y = permuted_solution_.data();
+  for (Eigen::Index j = 0; j < n; ++j) {  // L z = P b
+    const double y0 = y[3 * j], y1 = y[3 * j + 1], y2 = y[3 * j + 2];
+    for (auto p = column_start[j]; p < column_start[j + 1]; ++p) {
+      double* target = y + 3 * row[p];
+      target[0] -= value[p] * y0;
+      target[1] -= value[p] * y1;
+      target[2] -= value[p] * y2;
+    }
+  }
+  for (Eigen::Index j = 0; j < n; ++j) permuted_solution_.col(j) /= diagonal[j];  // D w = z
+  for (Eigen::Index j = n - 1; j >= 0; --j) {  // L^T v = w
+    double y0 = y[3 * j], y1 = y[3 * j + 1], y2 = y[3 * j + 2];
+    for (auto p = column_start[j]; p < column_start[j + 1]; ++p) {
+      const double* source = y + 3 * row[p];
+      y0 -= value[p] * source[0];
+      y1 -= value[p] * source[1];
+      y2 -= value[p] * source[2];
+    }
+    y[3 * j] = y0;
+    y[3 * j + 1] = y1;
+    y[3 * j + 2] = y2;
+  }
+  result.resize(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) result.row(i) = permuted_solution_.col(permutation[i]).transpose();
+}
+
+void LocalGlobalSolver::scatterFree(const Eigen::MatrixXd& free, Eigen::Matrix3Xd& position) const {
+  for (Eigen::Index f = 0; f < free_count_; ++f)
+    position.col(free_particle_[static_cast<std::size_t>(f)]) = free.row(f).transpose();
+}
+
+void LocalGlobalSolver::gatherFree(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& free) const {
+  for (Eigen::Index f = 0; f < free_count_; ++f)
+    free.row(f) = position.col(free_particle_[static_cast<std::size_t>(f)]).transpose();
+}
+
+double LocalGlobalSolver::energyAndGradient(const Eigen::Matrix3Xd& position, const Eigen::MatrixXd& free,
+                                            Eigen::MatrixXd& gradient) {
+  rhs_ = fixed_rhs_;
+  const double energy = addProjections(position, rhs_);
+  gradient.noalias() = stiffness_free_ * free;
+  gradient -= rhs_;
+  return energy;
+}
+
+void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update,
+                                              SolveStats& stats, Clock::time_point solve_start) {
+  // L-BFGS two-loop recursion with H0 = (L + W)^-1 (the prefactored matrix), backtracking (Armijo) line search on the
+  // energy. The collision hook runs after every accepted step; when it moved particles the energy and gradient are
+  // evaluated again at the corrected positions, so every curvature pair is between points where gradients were taken.
+  const int history = settings_.lbfgs_history;
+  const double free_count = std::max<double>(1.0, static_cast<double>(free_count_));
+  constexpr double kArmijo = 1e-4;
+  constexpr int kMaxHalvings = 30;
+  int stored = 0, newest = -1;
+  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+
+  auto mss_start = Clock::now();
+  gatherFree(state.position, free_current_);
+  double energy = energyAndGradient(state.position, free_current_, gradient_);
+  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+    if (iteration > 0) {
+      const int slot = (newest + 1) % history;
+      history_step_[slot] = free_current_ - free_previous_;
+      history_gradient_change_[slot] = gradient_ - previous_gradient_;
+      const double curvature = (history_step_[slot].array() * history_gradient_change_[slot].array()).sum();
+      // Only pairs of positive curvature keep the inverse-Hessian estimate positive definite.
+      if (curvature > 1e-12 * history_step_[slot].norm() * history_gradient_change_[slot].norm()) {
+        history_inverse_curvature_[slot] = 1.0 / curvature;
+        newest = slot;
+        stored = std::min(stored + 1, history);
+      }
+    }
+    direction_ = gradient_;
+    for (int j = 0; j < stored; ++j) {
+      const int slot = (newest - j + history) % history;
+      history_alpha_[slot] = history_inverse_curvature_[slot] * (history_step_[slot].array() * direction_.array()).sum();
+      direction_ -= history_alpha_[slot] * history_gradient_change_[slot];
+    }
+    solvePrefactored(direction_, trial_);  // trial_ is free until the line search
+    direction_.swap(trial_);
+    for (int j = stored - 1; j >= 0; --j) {
+      const int slot = (newest - j + history) % history;
+      const double beta =
+          history_inverse_curvature_[slot] * (history_gradient_change_[slot].array() * direction_.array()).sum();
+      direction_ += (history_alpha_[slot] - beta) * history_step_[slot];
+    }
+    direction_ = -direction_;
+    double slope = (gradient_.array() * direction_.array()).sum();
+    if (!(slope < 0)) {  // the history no longer describes the energy here: fall back to the plain preconditioned step
+      stored = 0;
+      solvePrefactored(gradient_, direction_);
+      direction_ = -direction_;
+      slope = (gradient_.array() * direction_.array()).sum();
+    }
+
+    double step = 1.0, trial_energy = energy;
+    bool decreased = false;
+    for (int halving = 0; halving <= kMaxHalvings && slope < 0; ++halving, step *= 0.5) {
+      trial_ = free_current_ + step * direction_;
+      scatterFree(trial_, state.position);
+      trial_energy = energyAndGradient(state.position, trial_, trial_gradient_);
+      if (trial_energy <= energy + kArmijo * step * slope) {
+        decreased = true;
+        break;
+      }
+    }
+    if (!decreased) {  // no descent left at machine precision: this is the minimum the hook allows
+      scatterFree(free_current_, state.position);
+      stats.iterations = iteration + 1;
+      stats.mean_displacement_m = 0;
+      stats.mss_ms += millisecondsSince(mss_start);
+      stats.stopping_rule_met = settings_.stopping_rule != StoppingRule::time_budget;
+      return;
+    }
+    free_previous_.swap(free_current_);
+    free_current_.swap(trial_);
+    previous_gradient_.swap(gradient_);
+    gradient_.swap(trial_gradient_);
+    energy = trial_energy;
+    scatterFree(free_previous_, state.previous_position);
+    stats.mss_ms += millisecondsSince(mss_start);
+
+    runAfterUpdateHook(after_update, state, stats);
+    mss_start = Clock::now();
+    if (stats.contacts > 0) {
+      gatherFree(state.position, free_current_);
+      energy = energyAndGradient(state.position, free_current_, gradient_);
+    }
+    // Measured between the states the hook left: a step into a contact that the hook undoes is no motion, so resting
+    // contacts do not keep the displacement rule from settling.
+    const double displacement = (free_current_ - free_previous_).rowwise().norm().sum();
+    stats.iterations = iteration + 1;
+    stats.mean_displacement_m = displacement / free_count;
+    if (!std::isfinite(stats.mean_displacement_m) || !std::isfinite(energy)) {
+      stats.diverged = true;  // finishSolve puts the entry state back
+      break;
+    }
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
+    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
+      stats.stopping_rule_met = true;
+      break;
+    }
+  }
+  stats.mss_ms += millisecondsSince(mss_start);
 }
 
 SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
@@ -359,11 +546,17 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
                                 " expected)");
   SolveStats stats;
   const auto solve_start = Clock::now();
+  entry_position_ = state.position;
+  entry_previous_position_ = state.previous_position;
   // The pose enters only here: the fixed particles' coupling terms, constant over the solve.
   for (Eigen::Index i = 0; i < n; ++i)
     if (system_.is_fixed[static_cast<std::size_t>(i)]) fixed_position_.row(i) = state.position.col(i).transpose();
   fixed_rhs_.noalias() = -(free_fixed_ * fixed_position_);
 
+  if (settings_.lbfgs_history > 0) {
+    quasiNewtonIterations(state, after_update, stats, solve_start);
+    return finishSolve(state, stats, solve_start);
+  }
   const double free_count = std::max<double>(1.0, static_cast<double>(free_count_));
   const int per_step = settings_.quasi_static ? 1 : settings_.iterations_per_step;
   const double keep_velocity = 1.0 - settings_.damping;
@@ -421,15 +614,33 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
     runAfterUpdateHook(after_update, state, stats);
     stats.iterations = iteration + 1;
     stats.mean_displacement_m = displacement / free_count;
+    if (!std::isfinite(stats.mean_displacement_m)) {
+      stats.diverged = true;
+      break;
+    }
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
     if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
       stats.stopping_rule_met = true;
       break;
     }
   }
+  return finishSolve(state, stats, solve_start);
+}
+
+SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stats, Clock::time_point solve_start) const {
+  // The last collision hook ran after the last displacement was measured.
+  if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
+  if (stats.diverged) {
+    state.position = entry_position_;
+    state.previous_position = entry_previous_position_;
+    stats.mean_displacement_m = 0;
+    stats.peak_mean_displacement_m = 0;
+  }
   // The quasi-static result is an equilibrium: leave it at rest.
   if (settings_.quasi_static) state.previous_position = state.position;
-  if (settings_.stopping_rule == StoppingRule::iterations) stats.stopping_rule_met = true;
+  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged) stats.stopping_rule_met = true;
   stats.last_dt_s = stats.min_dt_s = stats.max_dt_s = settings_.quasi_static ? 0.0 : settings_.time_step_s;
+  stats.time_step_s = stats.last_dt_s;
   stats.total_ms = millisecondsSince(solve_start);
   recordSpringMetrics(system_.springs, state.position, stats);
   return stats;

@@ -22,8 +22,8 @@ std::string validate(const ModelSettings& s) {
     return "spring_material_n must be a finite value > 0";
   if (!(s.density_kg_per_m3 > 0) || !std::isfinite(s.density_kg_per_m3))
     return "density_kg_per_m3 must be a finite value > 0";
-  if (!(s.boundary_fibre_fraction > 0 && s.boundary_fibre_fraction <= 1))
-    return "boundary_fibre_fraction must be in (0, 1]";
+  if (!(s.boundary_fibre_fraction >= 0 && s.boundary_fibre_fraction <= 1))
+    return "boundary_fibre_fraction must be in [0, 1]";
   return {};
 }
 

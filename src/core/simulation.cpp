@@ -48,9 +48,19 @@ FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
   } else {
     stats.solve = solver_ ? solver_->solve(state_) : local_global_solver_->solve(state_);
   }
+  // The solvers put a diverged state back as it was on entry, which is finite whenever the previous result was. Should
+  // anything still leave a non-finite position, fall back to the rigid pre-transform of the rest shape: finite by
+  // construction, and a pose-consistent answer rather than none.
   stats.finite = state_.position.allFinite();
+  if (!stats.finite) {
+    rigidPretransform(system_, transforms, state_);
+    stats.solve.diverged = true;
+    stats.fell_back_to_pretransform = true;
+    if (collision_) stats.collision = collision_->measure(state_);
+    stats.finite = state_.position.allFinite();
+  }
   previous_transforms_ = transforms;
-  has_previous_ = stats.finite;  // never warm-start from a broken state
+  has_previous_ = stats.finite && !stats.solve.diverged;  // never warm-start from a broken state
   return stats;
 }
 

@@ -98,6 +98,8 @@ VerletSolver::VerletSolver(const MassSpringSystem& system, SolverSettings settin
 
   const Eigen::Index n = system_.particleCount();
   force_.setZero(3, n);
+  entry_position_.setZero(3, n);
+  entry_previous_position_.setZero(3, n);
   packSprings();
   const Eigen::VectorXd mass =
       settings_.mass_rule == MassRule::stiffness_scaled ? stiffnessScaledMass(system_) : system_.mass;
@@ -119,12 +121,14 @@ VerletSolver::VerletSolver(const MassSpringSystem& system, SolverSettings settin
   dt_ = settings_.dt_s > 0 ? settings_.dt_s : 0.9 * limit;
   dt_min_ = settings_.dt_min_s > 0 ? std::min(settings_.dt_min_s, dt_) : dt_ / 10.0;
   previous_dt_ = dt_;
+  if (system_.springs.size() > 0) mean_rest_length_ = system_.springs.rest_length.mean();
 }
 
 std::size_t VerletSolver::solverBytes() const {
   return packed_springs_.size() * sizeof(PackedSpring) + spring_runs_.size() * sizeof(SpringRun) +
          static_cast<std::size_t>(force_.size() + inverse_mass_.size()) * sizeof(double) +
-         (free_particles_.size() + boundary_free_particles_.size()) * sizeof(std::int32_t);
+         (free_particles_.size() + boundary_free_particles_.size()) * sizeof(std::int32_t) +
+         static_cast<std::size_t>(entry_position_.size() + entry_previous_position_.size()) * sizeof(double);
 }
 
 void VerletSolver::packSprings() {
@@ -200,13 +204,13 @@ double VerletSolver::adaptiveTimeStep(const ParticleState& state) const {
   return std::max(dt, dt_min_);
 }
 
-double VerletSolver::integrate(ParticleState& state, double dt) {
+VerletSolver::Integration VerletSolver::integrate(ParticleState& state, double dt) {
   // Damped Verlet (eq. 2.14): x' = x + (1 - c dt / m)(x - x_prev) + F dt^2 / m.
   double* x = state.position.data();
   double* x_prev = state.previous_position.data();
   const double* f = force_.data();
   const double* inverse_mass = inverse_mass_.data();
-  double displacement_sum = 0;
+  Integration result;
   for (const std::int32_t i : free_particles_) {
     const std::int32_t k = 3 * i;
     const double keep = 1.0 - damping_ * dt * inverse_mass[i];
@@ -214,14 +218,16 @@ double VerletSolver::integrate(ParticleState& state, double dt) {
     double moved_squared = 0;
     for (int d = 0; d < 3; ++d) {
       const double current = x[k + d];
-      const double next = current + keep * (current - x_prev[k + d]) + acceleration_scale * f[k + d];
+      const double previous_step = current - x_prev[k + d];
+      const double next = current + keep * previous_step + acceleration_scale * f[k + d];
       x_prev[k + d] = current;
       x[k + d] = next;
       moved_squared += (next - current) * (next - current);
+      result.step_correlation += (next - current) * previous_step;
     }
-    displacement_sum += std::sqrt(moved_squared);
+    result.displacement_sum += std::sqrt(moved_squared);
   }
-  return displacement_sum;
+  return result;
 }
 
 double VerletSolver::step(ParticleState& state) {
@@ -232,6 +238,36 @@ double VerletSolver::step(ParticleState& state) {
   return dt;
 }
 
+bool VerletSolver::attempt(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
+                           Clock::time_point solve_start) {
+  const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
+  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  DivergenceMonitor divergence(mean_rest_length_);
+  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+    const auto mss_start = Clock::now();
+    computeForces(state.position);
+    const double dt = settings_.dt_rule == TimeStepRule::adaptive ? adaptiveTimeStep(state) : dt_;
+    const Integration moved = integrate(state, dt);
+    stats.mss_ms += millisecondsSince(mss_start);
+
+    runAfterUpdateHook(after_update, state, stats);
+    ++stats.iterations;
+    stats.last_dt_s = dt;
+    stats.min_dt_s = std::min(stats.min_dt_s, dt);
+    stats.max_dt_s = std::max(stats.max_dt_s, dt);
+    stats.mean_displacement_m = moved.displacement_sum / free_count;
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
+
+    if (divergence.diverged(stats.mean_displacement_m, moved.step_correlation)) return false;
+    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
+      stats.stopping_rule_met = true;
+      break;
+    }
+  }
+  // The collision hook of the last iteration runs after the last integration, so check what it left too.
+  return state.position.allFinite();
+}
+
 SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
   if (state.position.cols() != system_.particleCount() || state.previous_position.cols() != system_.particleCount())
     throw std::invalid_argument("particle state does not match the mass-spring system (" +
@@ -240,30 +276,30 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
   SolveStats stats;
   stats.min_dt_s = std::numeric_limits<double>::infinity();
   const auto solve_start = Clock::now();
-  const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
-  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  entry_position_ = state.position;
+  entry_previous_position_ = state.previous_position;
 
-  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
-    const auto mss_start = Clock::now();
-    computeForces(state.position);
-    const double dt = settings_.dt_rule == TimeStepRule::adaptive ? adaptiveTimeStep(state) : dt_;
-    const double displacement = integrate(state, dt);
-    stats.mss_ms += millisecondsSince(mss_start);
-
-    runAfterUpdateHook(after_update, state, stats);
-    stats.iterations = iteration + 1;
-    stats.last_dt_s = dt;
-    stats.min_dt_s = std::min(stats.min_dt_s, dt);
-    stats.max_dt_s = std::max(stats.max_dt_s, dt);
-    stats.mean_displacement_m = displacement / free_count;
-
-    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
-      stats.stopping_rule_met = true;
+  // Retries share the solve's time budget (StoppingRule::time_budget): a budget spent on a diverged attempt leaves
+  // the retry little time, which keeps the frame's cost bounded.
+  while (!attempt(state, after_update, stats, solve_start)) {
+    state.position = entry_position_;
+    state.previous_position = entry_previous_position_;
+    // The diverged attempt's steps (possibly infinite) describe nothing that is left in the state.
+    stats.stopping_rule_met = false;
+    stats.mean_displacement_m = 0;
+    stats.peak_mean_displacement_m = 0;
+    if (stats.divergence_recoveries == kMaxRecoveries) {
+      stats.diverged = true;
       break;
     }
+    // The step proved unstable for this model: keep the halved one for later solves too.
+    ++stats.divergence_recoveries;
+    dt_ /= 2.0;
+    dt_min_ /= 2.0;
   }
-  if (settings_.stopping_rule == StoppingRule::iterations) stats.stopping_rule_met = true;
+  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged) stats.stopping_rule_met = true;
   if (stats.iterations == 0) stats.min_dt_s = 0;
+  stats.time_step_s = dt_;
   stats.total_ms = millisecondsSince(solve_start);
   recordSpringMetrics(system_.springs, state.position, stats);
   return stats;

@@ -234,6 +234,9 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   stats.converged = solver.stopping_rule == StoppingRule::iterations || solve.stopping_rule_met;
   stats.warm_started = frame.solve.warm_started;
   stats.finite = frame.solve.finite;
+  stats.divergence_recoveries = static_cast<std::uint32_t>(solve.divergence_recoveries);
+  stats.diverged = solve.diverged;
+  stats.time_step_s = solve.time_step_s;
   stats.mss_ms = solve.mss_ms;
   stats.collision_ms = solve.collision_ms;
   stats.skinning_ms = frame.skinning_ms;

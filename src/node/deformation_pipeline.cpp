@@ -95,7 +95,7 @@ std::string DeformationPipeline::describe() const {
   std::ostringstream out;
   out << system.muscleCount() << " muscles, " << sim.bones().size() << " bones; " << system.particleCount()
       << " particles (" << fixed << " fixed, " << boundary << " on the boundary), " << system.springs.size()
-      << " springs; collision " << (sim.collisionWorld() ? "on" : "off") << ": " << muscle_spheres
+      << " springs; solver " << toString(sim.settings().solver_kind) << "; collision " << (sim.collisionWorld() ? "on" : "off") << ": " << muscle_spheres
       << " muscle spheres, " << bone_spheres << " bone spheres; model memory "
       << static_cast<double>(modelBytes()) / (1024.0 * 1024.0) << " MiB; build " << report.build_ms << " ms";
   if (skinning_)

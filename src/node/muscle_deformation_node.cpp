@@ -45,18 +45,6 @@ double median(std::vector<double> values) {
   return *middle;
 }
 
-// Largest motion of any bone between two poses: displacement of its rest centroid and rotation angle.
-void poseChange(const BoneTransforms& a, const BoneTransforms& b, const std::vector<Eigen::Vector3d>& centres,
-                double& translation_m, double& rotation_rad) {
-  translation_m = 0;
-  rotation_rad = 0;
-  for (std::size_t i = 0; i < a.size() && i < b.size(); ++i) {
-    translation_m = std::max(translation_m, (a[i] * centres[i] - b[i] * centres[i]).norm());
-    const Eigen::AngleAxisd delta(a[i].linear() * b[i].linear().transpose());
-    rotation_rad = std::max(rotation_rad, std::abs(delta.angle()));
-  }
-}
-
 }  // namespace
 
 MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const ros::NodeHandle& private_node)
@@ -88,10 +76,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
     throw std::runtime_error(std::string("cannot build the muscle model (scene ") + settings_.scene_path +
                              "): " + e.what());
   }
-  for (const Bone& bone : stream_->simulation().bones()) {
-    const Vertices& v = bone.surface.vertices;
-    bone_centres_.push_back(v.cols() ? Eigen::Vector3d(v.rowwise().mean()) : Eigen::Vector3d::Zero());
-  }
+  bone_centres_ = boneRestCentroids(stream_->simulation().bones());
   const double startup_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
@@ -235,8 +220,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const BoneTransforms transforms = boneTransformsOf(stream_->simulation().bones(), pose);
   bool reset = false;
   if (has_previous_) {
-    double moved_m = 0, turned_rad = 0;
-    poseChange(transforms, previous_transforms_, bone_centres_, moved_m, turned_rad);
+    const BoneMotion motion = largestBoneMotion(previous_transforms_, transforms, bone_centres_);
+    const double moved_m = motion.translation_m, turned_rad = motion.rotation_rad;
     if (link_poses.stamp < previous_stamp_) {
       ROS_INFO_STREAM("muscle_deformation: time jumped back from " << previous_stamp_ << " to " << link_poses.stamp
                                                                    << ": cold start");
@@ -262,7 +247,7 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const StartMode start = settings_.stream.warm_start ? StartMode::warm : StartMode::cold;
   const PipelineFrame& frame = stream_->solve(pose, start, want_surfaces || want_surface_markers,
                                               want_stats && settings_.stream.stats_metrics);
-  has_previous_ = frame.solve.finite;
+  has_previous_ = frame.solve.finite && !frame.solve.solve.diverged;
   previous_stamp_ = link_poses.stamp;
   previous_transforms_ = transforms;
 
@@ -273,6 +258,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     ++window_solved_;
     if (reset) ++counters_.resets;
     if (!frame.solve.finite) ++counters_.non_finite;
+    counters_.divergence_recoveries += static_cast<std::uint32_t>(frame.solve.solve.divergence_recoveries);
+    if (frame.solve.solve.diverged) ++counters_.diverged;
     window_solve_ms_.push_back(frame.solve.solve.total_ms);
     stats.poses_received = counters_.received;
     stats.poses_solved = counters_.solved;
@@ -281,6 +268,15 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     stats.tf_failures = counters_.tf_failures;
     stats.resets = counters_.resets;
   }
+  if (frame.solve.solve.diverged)
+    ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged at every time step down to "
+                                                                       << frame.solve.solve.time_step_s
+                                                                       << " s; publishing its starting state, next frame starts cold");
+  else if (frame.solve.solve.divergence_recoveries > 0)
+    ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged and was re-run "
+                                                                      << frame.solve.solve.divergence_recoveries
+                                                                      << " time(s) with a halved time step, now "
+                                                                      << frame.solve.solve.time_step_s << " s");
   if (!frame.solve.finite)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp
                                                                        << " gave non-finite positions; next frame starts cold");
@@ -401,6 +397,7 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   if (request.max_iterations > 0) solver.max_iterations = request.max_iterations;
   if (request.displacement_tolerance_m > 0) solver.displacement_tolerance_m = request.displacement_tolerance_m;
   if (request.time_budget_ms > 0) solver.time_budget_ms = request.time_budget_ms;
+  shareStoppingRule(settings.simulation);
   std::ostringstream key;
   for (const MuscleDescription& m : selected) key << m.name << ',';
   key << '|' << solver.max_iterations << '|' << solver.displacement_tolerance_m << '|' << solver.time_budget_ms;
@@ -440,14 +437,20 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
                                                                 pipeline.descriptions(), header);
   response.surfaces.header = header;
   response.stats = statsToMessage(frame, solver, header);
-  response.success = frame.solve.finite;
+  response.success = frame.solve.finite && !frame.solve.solve.diverged;
   std::ostringstream message;
   if (!frame.solve.finite) {
     message << "the solve gave non-finite particle positions";
+  } else if (frame.solve.solve.diverged) {
+    message << "the solve diverged at every time step down to " << frame.solve.solve.time_step_s
+            << " s; the particles are its starting state";
   } else {
     message << "solved " << system.muscleCount() << " muscles, " << system.particleCount() << " particles in "
             << frame.solve.solve.iterations << " iterations, " << frame.solve.solve.total_ms << " ms ("
             << (frame.solve.warm_started ? "warm" : "cold") << " start)";
+    if (frame.solve.solve.divergence_recoveries > 0)
+      message << " after " << frame.solve.solve.divergence_recoveries
+              << " divergence recoveries (time step halved to " << frame.solve.solve.time_step_s << " s)";
     if (!frame.has_surfaces) message << "; no surfaces: " << pipeline.skinningProblem();
   }
   response.message = message.str();
@@ -491,6 +494,8 @@ void MuscleDeformationNode::diagnoseSolveTime(diagnostic_updater::DiagnosticStat
   status.add("Max solve (ms)", max_ms);
   status.add("Frame budget (ms)", budget_ms);
   status.add("Non-finite frames (total)", counters_.non_finite);
+  status.add("Divergence recoveries (total)", counters_.divergence_recoveries);
+  status.add("Diverged frames (total)", counters_.diverged);
 }
 
 void MuscleDeformationNode::diagnosePoses(diagnostic_updater::DiagnosticStatusWrapper& status) {

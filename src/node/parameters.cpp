@@ -87,6 +87,13 @@ BroadPhaseKind broadPhaseFromString(const std::string& name) {
   return parseNamed<BroadPhaseKind>(name, {{"octree", BroadPhaseKind::octree}, {"hash_grid", BroadPhaseKind::hash_grid}});
 }
 
+void shareStoppingRule(SimulationSettings& simulation) {
+  simulation.local_global.stopping_rule = simulation.solver.stopping_rule;
+  simulation.local_global.max_iterations = simulation.solver.max_iterations;
+  simulation.local_global.displacement_tolerance_m = simulation.solver.displacement_tolerance_m;
+  simulation.local_global.time_budget_ms = simulation.solver.time_budget_ms;
+}
+
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root) {
   NodeSettings settings;
   settings.package_root = package_root;
@@ -126,6 +133,13 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readDouble("time_budget_ms", solver.time_budget_ms, 0.0, 1e6);
 
   SimulationSettings& simulation = settings.pipeline.simulation;
+  p.readEnum("solver", simulation.solver_kind, solverKindFromString);
+  p.readDouble("volume_weight", simulation.local_global.volume_weight, 0.0, 1e6);
+  p.readDouble("chebyshev_rho", simulation.local_global.chebyshev_rho, 0.0, 0.999);
+  shareStoppingRule(simulation);
+  const std::string local_global_problem = validate(simulation.local_global);
+  if (!local_global_problem.empty()) p.fail("solver", local_global_problem);
+
   p.read("collisions", simulation.collisions);
   p.readEnum("broad_phase", simulation.collision.broad_phase, broadPhaseFromString);
   p.readDouble("bone_reach_margin_m", simulation.collision.bone_reach_margin_m, 0.0, 10.0);

@@ -284,6 +284,55 @@ TEST(CollisionWorld, BoneOutOfReachIsSkipped) {
   EXPECT_EQ(world.measure(state).bones_skipped, 1);
 }
 
+// Skipping bones out of reach must change nothing but the work done: the same contacts (as many as brute force finds)
+// and bit-identical positions as sending every muscle-bone pair to the broad phase.
+TEST(CollisionWorld, SkippingBonesOutOfReachMatchesTestingEveryBone) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> coordinate(0.0, 0.1), radius(0.004, 0.012);
+  std::vector<TestParticle> particles;
+  for (int k = 0; k < 60; ++k)
+    particles.push_back({k % 3, {coordinate(rng), coordinate(rng), coordinate(rng)}, radius(rng), k % 7 == 0});
+  const auto system = makeSystem(particles, 3);
+  md::SphereSet near_bone, far_bone;  // near: inside the muscles' region; far: a metre away (the other leg, say)
+  near_bone.resize(20);
+  far_bone.resize(20);
+  for (Eigen::Index k = 0; k < 20; ++k) {
+    near_bone.centre.col(k) = Eigen::Vector3d(coordinate(rng), coordinate(rng), coordinate(rng));
+    near_bone.radius[k] = radius(rng);
+    far_bone.centre.col(k) = near_bone.centre.col(k) + Eigen::Vector3d(1.0, 0, 0);
+    far_bone.radius[k] = near_bone.radius[k];
+  }
+  // Brute force over every sphere pair: muscle-bone pairs with a free particle count as contacts.
+  int expected_bone_contacts = 0;
+  for (const TestParticle& p : particles) {
+    if (p.fixed) continue;
+    md::SphereSet one = spheres({{p.position, p.radius}});
+    std::vector<md::SpherePair> pairs;
+    md::overlappingPairsBruteForce(one, near_bone, pairs);
+    expected_bone_contacts += static_cast<int>(pairs.size());
+    md::overlappingPairsBruteForce(one, far_bone, pairs);
+    EXPECT_TRUE(pairs.empty());
+  }
+  ASSERT_GT(expected_bone_contacts, 0);
+
+  for (const md::BroadPhaseKind kind : {md::BroadPhaseKind::octree, md::BroadPhaseKind::hash_grid}) {
+    md::CollisionSettings skipping = settingsFor(kind), testing_all = settingsFor(kind);
+    testing_all.skip_bones_out_of_reach = false;
+    md::CollisionWorld skip_world(system, {near_bone, far_bone}, skipping);
+    md::CollisionWorld all_world(system, {near_bone, far_bone}, testing_all);
+    auto skip_state = md::restState(system);
+    auto all_state = md::restState(system);
+    const int skip_contacts = skip_world.resolve(skip_state);
+    const int all_contacts = all_world.resolve(all_state);
+    EXPECT_EQ(skip_contacts, all_contacts) << md::toString(kind);
+    EXPECT_EQ(skip_world.accumulatedStats().muscle_bone_contacts, expected_bone_contacts) << md::toString(kind);
+    EXPECT_EQ(all_world.accumulatedStats().muscle_bone_contacts, expected_bone_contacts) << md::toString(kind);
+    EXPECT_EQ(skip_world.accumulatedStats().bones_skipped, 1) << md::toString(kind);  // the far bone only
+    EXPECT_EQ(all_world.accumulatedStats().bones_skipped, 0) << md::toString(kind);
+    EXPECT_TRUE(skip_state.position == all_state.position) << md::toString(kind);
+  }
+}
+
 TEST(CollisionWorld, SetBoneTransformsRejectsAWrongCount) {
   const auto system = makeSystem({{0, {0, 0, 0}, 0.01}}, 1);
   md::CollisionWorld world(system, {spheres({{Eigen::Vector3d(1, 0, 0), 0.1}})});

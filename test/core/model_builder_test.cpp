@@ -123,6 +123,34 @@ TEST(ModelBuilder, BoundaryFibresDoNotDependOnParticlesPerFibre) {
   EXPECT_EQ(reference.size(), 20u);  // the outer ring of the 6 x 6 grid
 }
 
+TEST(ModelBuilder, BoundaryFractionZeroMakesEveryParticleCollide) {
+  SmallScene scene;
+  scene.muscles.push_back(makeSpindleMuscle("spindle", {0, 0, 0}, {0, 0, 0.2}, 0.02, 1.0, 6, 30, 48, 60));
+  ModelSettings settings = smallSettings();
+  settings.boundary_fibre_fraction = 0;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, {}, settings);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    EXPECT_TRUE(system.is_boundary[i]) << "particle " << i;
+    EXPECT_GT(system.radius[i], 0.0) << "particle " << i;
+  }
+}
+
+TEST(BoneMotion, LargestTravelOfACentroidAndLargestTurn) {
+  const std::vector<Eigen::Vector3d> centroids = {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0)};
+  const BoneTransforms rest(2, Eigen::Isometry3d::Identity());
+  BoneTransforms moved = rest;
+  moved[0] = Eigen::Translation3d(0, 0.003, 0) * Eigen::Isometry3d::Identity();
+  // Bone 1 turns 0.2 rad about its own centroid: it turns but its centroid stays.
+  moved[1] = Eigen::Translation3d(1, 0, 0) * Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ()) *
+             Eigen::Translation3d(-1, 0, 0);
+  const BoneMotion motion = largestBoneMotion(rest, moved, centroids);
+  EXPECT_NEAR(motion.translation_m, 0.003, 1e-12);
+  EXPECT_NEAR(motion.rotation_rad, 0.2, 1e-12);
+  const BoneMotion none = largestBoneMotion(moved, moved, centroids);
+  EXPECT_EQ(none.translation_m, 0.0);
+  EXPECT_NEAR(none.rotation_rad, 0.0, 1e-12);
+}
+
 TEST(SyntheticScene, SubdividedBoxIsClosedWithShortEdges) {
   const TriangleMesh box = makeBoxMesh({0, 0, 0}, {0.1, 0.2, 0.05}, 0.01);
   EXPECT_TRUE(checkSurfaceTopology(box).closedManifold()) << checkSurfaceTopology(box).describe();

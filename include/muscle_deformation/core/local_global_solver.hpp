@@ -20,6 +20,8 @@
 #include <Eigen/SparseCore>
 #include <Eigen/SparseCholesky>
 
+#include <chrono>
+
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -64,6 +66,12 @@ struct LocalGlobalSettings {
   double chebyshev_rho = 0.0;
   int chebyshev_delay = 5;
 
+  // Quasi-static mode only: quasi-Newton (L-BFGS) on the same energy, with the prefactored matrix as the initial
+  // inverse Hessian (Liu, Bouaziz, Kavan 2017). Each local/global step is a gradient step preconditioned by that
+  // matrix; the curvature pairs of the last `lbfgs_history` steps correct it along the soft shape changes (bending of
+  // long muscles) where the plain iteration crawls. 0 = plain local/global iterations. Excludes Chebyshev.
+  int lbfgs_history = 0;
+
   StoppingRule stopping_rule = StoppingRule::displacement;
   int max_iterations = 100;                // cap for every rule
   double displacement_tolerance_m = 1e-6;  // mean free-particle displacement of an iteration
@@ -95,7 +103,9 @@ class LocalGlobalSolver {
 
   // Iterates until the stopping rule is met; `after_update` is called after every global step (collision). Fixed
   // particles keep the positions `state` holds on entry (the pose): only the right-hand side depends on them, so the
-  // factorisation is reused across solves. Allocates nothing per iteration.
+  // factorisation is reused across solves. Allocates nothing per iteration. The iteration is implicit and needs no
+  // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
+  // stats say `diverged`.
   SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {});
 
   const LocalGlobalSettings& settings() const { return settings_; }
@@ -124,6 +134,23 @@ class LocalGlobalSolver {
   void buildTerms();
   void buildAndFactorise();
   void localGlobalIteration(const ParticleState& state);  // fills free_next_ from free_current_
+  // Local step at `position`: adds each term's projection force to `rhs` (free particles x 3); returns the energy
+  // sum of 1/2 w |current - projection|^2 over the terms (springs and volume). Its gradient with respect to the free
+  // particles is stiffness_free_ x_free - fixed_rhs_ - (what this adds).
+  double addProjections(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& rhs) const;
+  // The quasi-Newton iteration loop of solve(); fixed_rhs_ must be set for the pose.
+  void quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
+                             std::chrono::steady_clock::time_point solve_start);
+  // (L + W)^-1 rhs with the prefactored LDL^T, the three coordinates carried through one pass over the factor
+  // (Eigen's solve makes one pass per right-hand side, and the passes are bound by reading the factor).
+  void solvePrefactored(const Eigen::MatrixXd& rhs, Eigen::MatrixXd& result);
+  // Common end of a solve: stopping flag, time, spring metrics.
+  SolveStats finishSolve(ParticleState& state, SolveStats& stats, std::chrono::steady_clock::time_point solve_start) const;
+  // Free particles' rows of `free` written into `position`.
+  void scatterFree(const Eigen::MatrixXd& free, Eigen::Matrix3Xd& position) const;
+  void gatherFree(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& free) const;
+  // Energy at `position` (whose free rows are `free`), and its gradient with respect to the free particles.
+  double energyAndGradient(const Eigen::Matrix3Xd& position, const Eigen::MatrixXd& free, Eigen::MatrixXd& gradient);
 
   const MassSpringSystem& system_;
   LocalGlobalSettings settings_;
@@ -138,6 +165,8 @@ class LocalGlobalSolver {
   Eigen::VectorXd contact_weight_;  // proximal weight towards the current iterate, collidable particles only
   Eigen::SparseMatrix<double> free_fixed_;  // coupling block of W + L, free rows x all-particle columns (fixed only)
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> factor_;
+  Eigen::SparseMatrix<double> stiffness_free_;  // the free-free block of L alone (no proximal weights): the Hessian's
+                                                // constant part, for exact gradients in quasi-Newton mode
   int factorisations_ = 0;
   double factorisation_ms_ = 0;
 
@@ -145,6 +174,12 @@ class LocalGlobalSolver {
   Eigen::MatrixXd fixed_rhs_, rhs_, free_current_, free_previous_, free_next_, chebyshev_older_, inertial_target_,
       inertial_prediction_;
   Eigen::MatrixXd fixed_position_;  // all particles x 3, only fixed rows used
+  Eigen::Matrix3Xd permuted_solution_;  // solvePrefactored's work: one column per free particle, in factor order
+  // Quasi-Newton buffers (free particles x 3 each), allocated once when lbfgs_history > 0.
+  Eigen::MatrixXd gradient_, previous_gradient_, trial_gradient_, direction_, trial_;
+  std::vector<Eigen::MatrixXd> history_step_, history_gradient_change_;  // s_i, y_i of the last lbfgs_history steps
+  std::vector<double> history_inverse_curvature_, history_alpha_;        // 1 / (s_i . y_i), two-loop coefficients
+  Eigen::Matrix3Xd entry_position_, entry_previous_position_;  // the state a solve started from, for recovery
 };
 
 }  // namespace muscle_deformation

@@ -23,6 +23,8 @@ struct ModelSettings {
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
                                            // closest probe of some surface vertex for a boundary fibre
+                                           // (0: every fibre, so every particle collides; to measure
+                                           // what the seeds' boundary-only collision saves)
 };
 
 // Invalid settings or input (e.g. a muscle with no usable fibre); the message names the muscle and the problem.

@@ -29,6 +29,19 @@ void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_tr
 // Only the fixed (attached) particles follow their bones; free particles keep the previous result and velocity.
 void moveAttachments(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state);
 
+// How far the bones moved between two poses: the largest travel of a bone's rest centroid (m) and the largest angle
+// a bone turned (rad), over all bones. Decides whether a new pose needs a solve at all (the node skips a pose no
+// bone moved in) or a cold restart (a bone jumped).
+struct BoneMotion {
+  double translation_m = 0;
+  double rotation_rad = 0;
+};
+BoneMotion largestBoneMotion(const BoneTransforms& from, const BoneTransforms& to,
+                             const std::vector<Eigen::Vector3d>& rest_centroids);
+
+// Mean of each bone's rest surface vertices (origin for a bone without vertices), by bone index.
+std::vector<Eigen::Vector3d> boneRestCentroids(const std::vector<Bone>& bones);
+
 // State at rest: positions = rest positions, zero velocity.
 ParticleState restState(const MassSpringSystem& system);
 

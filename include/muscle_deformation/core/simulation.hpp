@@ -36,7 +36,9 @@ struct FrameStats {
   SolveStats solve;          // iterations, per-phase times, spring deviation, strain
   CollisionStats collision;  // contacts and remaining penetration after the last iteration
   bool warm_started = false;
-  bool finite = true;        // every particle position is finite
+  bool finite = true;        // every particle position is finite (always, unless the rest shape itself is not)
+  // The solve left non-finite positions despite the solver's own recovery; the state is the rigid pre-transform.
+  bool fell_back_to_pretransform = false;
 };
 
 class MuscleSimulation {

@@ -6,6 +6,7 @@
 #include <Eigen/Core>
 
 #include <chrono>
+#include <cmath>
 #include <functional>
 #include <limits>
 #include <string>
@@ -77,6 +78,42 @@ struct SolveStats {
   double mean_strain = 0;             // mean |l - l0| / l0
   double max_strain = 0;              // max |l - l0| / l0
   int contacts = 0;                   // reported by the collision hook, last iteration
+  double peak_mean_displacement_m = 0;  // largest mean free-particle displacement of any iteration (all attempts)
+  // Divergence (see DivergenceMonitor): each recovery restored the entry state and retried with half the step.
+  int divergence_recoveries = 0;
+  bool diverged = false;              // every attempt diverged: the state is the one the solve started from
+  double time_step_s = 0;             // the solver's fixed step (upper clamp of the adaptive one) at the end, s
+};
+
+// Tells a diverging explicit solve from a legitimate one, iteration by iteration. For a mode of frequency w, damped
+// Verlet (x' = x + keep (x - x_prev) + F dt^2 / m, keep = 1 - c dt / m <= 1) has the characteristic polynomial
+// l^2 - (1 + keep - w^2 dt^2) l + keep: it is w^2 dt^2 >= 0 at l = 1 and its roots multiply to keep <= 1, so no root
+// lies beyond +1 and complex roots have |l|^2 = keep <= 1. Whatever makes the step too long (stiffness or damping), the
+// growing mode has a real eigenvalue below -1: every particle reverses its direction of motion each iteration while
+// the steps grow. A solve that is merely moving a lot (a cold start accelerating from
+// the pre-transform, a collision push) keeps its direction or grows only once. Divergence is declared when the step
+// is non-finite, or when for `kGrowingReversals` consecutive iterations the mean step grew and reversed direction
+// (negative summed dot product of successive steps) and it now exceeds `kStepFraction` of the mean rest spring
+// length: an oscillation of that size at the step's own frequency is no physical motion of a muscle at rest.
+class DivergenceMonitor {
+ public:
+  static constexpr int kGrowingReversals = 3;
+  static constexpr double kStepFraction = 0.25;
+
+  explicit DivergenceMonitor(double mean_rest_length_m) : bound_m_(kStepFraction * mean_rest_length_m) {}
+  // `step_correlation` = sum over free particles of (x_new - x) . (x - x_prev) of this iteration.
+  bool diverged(double mean_displacement_m, double step_correlation) {
+    if (!std::isfinite(mean_displacement_m) || !std::isfinite(step_correlation)) return true;
+    const bool growing_reversal = mean_displacement_m > previous_m_ && step_correlation < 0;
+    growing_reversals_ = growing_reversal ? growing_reversals_ + 1 : 0;
+    previous_m_ = mean_displacement_m;
+    return growing_reversals_ >= kGrowingReversals && mean_displacement_m > bound_m_;
+  }
+
+ private:
+  double bound_m_;
+  double previous_m_ = std::numeric_limits<double>::infinity();
+  int growing_reversals_ = 0;
 };
 
 struct SpringMetrics {
@@ -113,10 +150,14 @@ inline void runAfterUpdateHook(const AfterUpdateHook& after_update, ParticleStat
 
 class VerletSolver {
  public:
+  static constexpr int kMaxRecoveries = 8;  // halvings: a step up to 256 x too long is still brought back
+
   VerletSolver(const MassSpringSystem& system, SolverSettings settings);
 
   // Advances `state` until the stopping rule is met. Fixed particles keep the positions `state` holds on entry.
-  // Allocates nothing per iteration.
+  // Allocates nothing per iteration. On divergence (DivergenceMonitor) the state is put back as it was on entry, the
+  // step halved for this and every later solve, and the solve run again, up to kMaxRecoveries times; if every
+  // attempt diverges the state is left as on entry and the stats say so.
   SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {});
 
   // One MSS update (forces, time step, integration) without collision, for benchmarks. Returns the dt used.
@@ -142,7 +183,14 @@ class VerletSolver {
   void packSprings();
   void computeForces(const Eigen::Matrix3Xd& position);
   double adaptiveTimeStep(const ParticleState& state) const;
-  double integrate(ParticleState& state, double dt);  // returns the summed displacement of free particles
+  struct Integration {
+    double displacement_sum = 0;  // summed |x_new - x| of free particles
+    double step_correlation = 0;  // summed (x_new - x) . (x - x_prev) of free particles
+  };
+  Integration integrate(ParticleState& state, double dt);
+  // One attempt at the solve from the current state; returns false if it diverged.
+  bool attempt(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
+               std::chrono::steady_clock::time_point solve_start);
 
   const MassSpringSystem& system_;
   SolverSettings settings_;
@@ -156,6 +204,8 @@ class VerletSolver {
   Eigen::VectorXd inverse_mass_;
   std::vector<std::int32_t> free_particles_;
   std::vector<std::int32_t> boundary_free_particles_;
+  double mean_rest_length_ = 0;  // m, scale of the divergence bound
+  Eigen::Matrix3Xd entry_position_, entry_previous_position_;  // the state a solve started from, for recovery
 };
 
 }  // namespace muscle_deformation

@@ -41,7 +41,7 @@ class MuscleDeformationNode {
  private:
   struct Counters {
     std::uint32_t received = 0, solved = 0, dropped = 0, unchanged = 0, tf_failures = 0, resets = 0,
-                  non_finite = 0;
+                  non_finite = 0, divergence_recoveries = 0, diverged = 0;
   };
   struct LinkPoses {
     ros::Time stamp;

@@ -35,6 +35,10 @@ struct NodeSettings {
 // Throws std::invalid_argument naming the parameter and what is wrong.
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
 
+// The node's one set of stopping parameters (stopping_rule, max_iterations, tolerances) drives whichever solver runs:
+// copies them from the Verlet settings into the local/global ones.
+void shareStoppingRule(SimulationSettings& simulation);
+
 // Parses the names used in the YAML; throw std::invalid_argument listing the accepted names.
 TimeStepRule timeStepRuleFromString(const std::string& name);
 StoppingRule stoppingRuleFromString(const std::string& name);

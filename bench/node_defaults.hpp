@@ -1,0 +1,64 @@
+// The node's defaults (config/muscle_deformation.yaml) as core settings, so the benchmarks that speak for the node
+// run what the node runs. Only the keys the core models; the string-valued solver rules the core has no parser for
+// are checked against the core defaults instead of converted, and a mismatch stops the benchmark.
+#pragma once
+
+#include "muscle_deformation/core/collision.hpp"
+#include "muscle_deformation/core/simulation.hpp"
+#include "muscle_deformation/core/spring_layout.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <stdexcept>
+#include <string>
+
+#ifndef MD_PACKAGE_DIR
+#define MD_PACKAGE_DIR "."
+#endif
+
+namespace bench {
+
+struct NodeDefaults {
+  muscle_deformation::SimulationSettings simulation;
+  bool warm_start = true;
+  double unchanged_translation_m = 0, unchanged_rotation_rad = 0;  // a pose no bone moved more than this is skipped
+  double reset_translation_m = 0, reset_rotation_rad = 0;          // a bone jumping further forces a cold start
+};
+
+inline NodeDefaults loadNodeDefaults() {
+  namespace md = muscle_deformation;
+  const std::string path = std::string(MD_PACKAGE_DIR) + "/config/muscle_deformation.yaml";
+  const YAML::Node yaml = YAML::LoadFile(path);
+  const auto require_same = [&](const char* key, const std::string& core_default) {
+    const std::string value = yaml[key].as<std::string>();
+    if (value != core_default)
+      throw std::runtime_error(path + ": " + key + " is '" + value + "' but the benchmark runs the core default '" +
+                               core_default + "'");
+  };
+  require_same("dt_rule", "fixed");
+  require_same("mass_rule", "stiffness_scaled");
+  require_same("stopping_rule", "iterations");
+  NodeDefaults defaults;
+  md::SimulationSettings& s = defaults.simulation;
+  s.model.particles_per_fibre = yaml["particles_per_fibre"].as<int>();
+  s.model.spring_layout = md::springLayoutFromString(yaml["spring_layout"].as<std::string>());
+  s.model.nearest_neighbours = yaml["nearest_neighbours"].as<int>();
+  s.model.attachment_distance_m = yaml["attachment_distance_m"].as<double>();
+  s.model.fix_fibre_ends = yaml["fix_fibre_ends"].as<bool>();
+  s.model.spring_material_n = yaml["spring_material_n"].as<double>();
+  s.model.density_kg_per_m3 = yaml["density_kg_per_m3"].as<double>();
+  s.solver.dt_s = yaml["dt_s"].as<double>();
+  s.solver.damping_scale = yaml["damping_scale"].as<double>();
+  s.solver.max_iterations = yaml["max_iterations"].as<int>();
+  s.collisions = yaml["collisions"].as<bool>();
+  require_same("broad_phase", md::toString(s.collision.broad_phase));
+  s.collision.bone_reach_margin_m = yaml["bone_reach_margin_m"].as<double>();
+  defaults.warm_start = yaml["warm_start"].as<bool>();
+  defaults.unchanged_translation_m = yaml["unchanged_translation_m"].as<double>();
+  defaults.unchanged_rotation_rad = yaml["unchanged_rotation_rad"].as<double>();
+  defaults.reset_translation_m = yaml["reset_translation_m"].as<double>();
+  defaults.reset_rotation_rad = yaml["reset_rotation_rad"].as<double>();
+  return defaults;
+}
+
+}  // namespace bench
