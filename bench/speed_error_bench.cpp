@@ -7,6 +7,7 @@
 #include "bench_scene.hpp"
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
+#include "progress.hpp"
 
 #include "muscle_deformation/core/collision.hpp"
 #include "muscle_deformation/core/deformation_metrics.hpp"
@@ -40,12 +41,14 @@ double secondsSince(Clock::time_point start) {
 // recovered from the step an automatic solver picks, so the fractions below are of the very bound the solver uses.
 constexpr double kAutoStepFraction = 0.9;
 
-// The converged shape of a pose: the damped Verlet solver (automatic step) run until the mean free-particle
-// displacement per iteration is below this (the rule), or the reference cap. Verlet, because on this scene
-// it reaches the rule in fewer seconds than the local/global solver (each of its iterations is about three times
-// cheaper, and both creep along the same nearly flat directions of the spring energy); the default run checks the
-// two against each other on one pose.
+// The converged shape of a pose: the quasi-static local/global solver in its quasi-Newton (L-BFGS) mode run until
+// the mean free-particle displacement per iteration is below this (the rule), or the reference cap. The
+// damped Verlet solver and the plain local/global iteration both creep along the soft shape changes (bending of the
+// long muscles) for tens of thousands of iterations; on gait frame 0 L-BFGS met the rule in about 500 iterations with
+// a history of 16 and about 1700 with 8. The default run compares Verlet and L-BFGS(8) with it on one pose.
 constexpr double kReferenceToleranceM = 1e-7;
+constexpr int kReferenceLbfgsHistory = 16;
+constexpr int kCheckLbfgsHistory = 8;
 // Volume term weight of the local/global configurations that use one (relative to the springs' stiffness, see
 // LocalGlobalSettings::volume_weight); the local/global bench measured 1 better than 10 on the synthetic thigh.
 constexpr double kVolumeWeight = 1.0;
@@ -56,10 +59,11 @@ struct Budget {
   int verlet_cap = 0;              // Verlet configurations
   int local_global_cap = 0;        // local/global without the volume term
   int local_global_volume_cap = 0; // with it (each iteration costs several times more)
+  int lbfgs_cap = 0;               // local/global in its L-BFGS mode
   int reference_cap = 0;           // the converged shapes of the default layout (and the warm starts' frames)
   int other_reference_cap = 0;     // the converged shapes of the other layouts
   int resolution_reference_cap = 0;
-  int local_global_check_cap = 0;  // the local/global solve compared with the reference on one pose
+  int verlet_check_cap = 0;        // the Verlet solve compared with the reference on one pose
   std::vector<int> resolutions;    // particles per fibre of the resolution study; the last is the finest
   std::size_t resolution_poses = 1;
 };
@@ -84,8 +88,10 @@ ModelSettings modelSettings(const ModelChoice& choice, int particles_per_fibre) 
   return settings;
 }
 
-SolverSettings referenceSettings(int cap) {
-  SolverSettings settings;
+LocalGlobalSettings referenceSettings(int cap, int lbfgs_history) {
+  LocalGlobalSettings settings;
+  settings.quasi_static = true;
+  settings.lbfgs_history = lbfgs_history;
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = kReferenceToleranceM;
   settings.max_iterations = cap;
@@ -95,8 +101,8 @@ SolverSettings referenceSettings(int cap) {
 SimulationSettings referenceSimulationSettings(const ModelChoice& choice, int particles_per_fibre, int cap) {
   SimulationSettings settings;
   settings.model = modelSettings(choice, particles_per_fibre);
-  settings.solver_kind = SolverKind::verlet;
-  settings.solver = referenceSettings(cap);
+  settings.solver_kind = SolverKind::local_global;
+  settings.local_global = referenceSettings(cap, kReferenceLbfgsHistory);
   return settings;  // collisions on, default CollisionSettings (octree)
 }
 
@@ -131,6 +137,7 @@ struct ModelContext {
   // Builds the system (with the collision radii it shrinks at rest) that every configuration solves, and runs the
   // reference settings, so the checkpointed reference solves can be checked against it.
   std::unique_ptr<MuscleSimulation> simulation;
+  std::unique_ptr<LocalGlobalSolver> reference_solver;  // the simulation's settings, prefactored once per model
   std::unique_ptr<SurfaceSkinning> skinning;     // default skinning settings (nearest_average)
   std::unique_ptr<DeformationMetrics> metrics;
   std::map<BroadPhaseKind, std::unique_ptr<CollisionWorld>> collision;
@@ -156,6 +163,8 @@ std::unique_ptr<ModelContext> makeModel(const bench::BundledScene& bundled, cons
   model->reference_cap = reference_cap;
   model->simulation = std::make_unique<MuscleSimulation>(
       bundled.scene.muscles, bundled.scene.bones, referenceSimulationSettings(choice, particles_per_fibre, reference_cap));
+  model->reference_solver =
+      std::make_unique<LocalGlobalSolver>(model->system(), model->simulation->settings().local_global);
   model->skinning = std::make_unique<SurfaceSkinning>(model->system(), model->simulation->muscles(), SkinningSettings{});
   model->metrics =
       std::make_unique<DeformationMetrics>(model->simulation->bones(), model->simulation->muscles(), model->system());
@@ -206,6 +215,7 @@ struct Config {
   BroadPhaseKind broad_phase = BroadPhaseKind::octree;
   bool warm = false;
   double volume_weight = 0;
+  int lbfgs_history = 0;  // local/global quasi-Newton mode; 0 = plain local/global iterations
   int cap = 0;
 };
 
@@ -255,7 +265,7 @@ ReferenceSolve solveReference(ModelContext& model, const bench::BundledScene& bu
   const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), bench::gaitPose(bundled, frame));
   CollisionWorld& world = model.world(BroadPhaseKind::octree);
   world.setBoneTransforms(transforms);
-  VerletSolver solver(model.system(), model.simulation->settings().solver);
+  LocalGlobalSolver& solver = *model.reference_solver;
   const bench::ConvergenceRun run =
       bench::coldSolve(model.system(), transforms, &world, model.reference_cap,
                        [&](ParticleState& state, const AfterUpdateHook& hook) { return solver.solve(state, hook); });
@@ -280,12 +290,13 @@ void recordReference(bench::JsonRecords& records, ModelContext& model, const ben
   const PointMetrics metrics = measurePoint(model, world, transforms, reference.position, reference.position, true);
   records.begin();
   addCommon(records, "reference", "reference " + model.choice.label + " " + std::to_string(model.particles_per_fibre),
-            "verlet", "dynamic", model.choice.label, "fixed", model.stability_bound_s * kAutoStepFraction,
-            kAutoStepFraction, "octree", "cold", 0, model.particles_per_fibre, frame);
+            "local_global", "quasi_static", model.choice.label, "fixed", 0, 0, "octree", "cold", 0,
+            model.particles_per_fibre, frame);
   records.add("iterations", reference.stats.iterations);
   records.add("wall_ms", reference.wall_ms);
   addMetrics(records, metrics);
   records.add("reference_cap", model.reference_cap);
+  records.add("lbfgs_history", kReferenceLbfgsHistory);
   records.add("reference_tolerance_m", kReferenceToleranceM);
   records.add("last_mean_displacement_m", reference.stats.mean_displacement_m);
   records.add("tolerance_reached", reference.stats.stopping_rule_met ? 1 : 0);
@@ -299,49 +310,6 @@ void recordReference(bench::JsonRecords& records, ModelContext& model, const ben
               reference.wall_ms, reference.stats.mean_displacement_m, reference.stats.stopping_rule_met ? "met" : "not met",
               reference.drift_last_half_mm, reference.drift_from_iteration, metrics.rms_mm, metrics.volume_error_pct,
               metrics.volume_error_max_pct, metrics.max_penetration_mm, metrics.surface_penetration_mm);
-}
-
-// Rough time left: each kind of work (e.g. "verlet", "local_global volume") costs its measured milliseconds per
-// iteration; kinds not yet measured cost the mean of those that were.
-class Progress {
- public:
-  explicit Progress(Clock::time_point start) : start_(start) {}
-  void plan(const std::string& kind, double iterations) { planned_[kind] += iterations; }
-  void done(const std::string& kind, double iterations, double seconds) {
-    planned_[kind] -= iterations;
-    done_iterations_[kind] += iterations;
-    done_seconds_[kind] += seconds;
-  }
-  double secondsLeft() const {
-    double known_rate = 0;
-    int known = 0;
-    for (const auto& [kind, iterations] : done_iterations_)
-      if (iterations > 0) {
-        known_rate += done_seconds_.at(kind) / iterations;
-        ++known;
-      }
-    const double fallback = known ? known_rate / known : 0;
-    double left = 0;
-    for (const auto& [kind, iterations] : planned_) {
-      const auto it = done_iterations_.find(kind);
-      const double rate = it != done_iterations_.end() && it->second > 0 ? done_seconds_.at(kind) / it->second : fallback;
-      left += std::max(0.0, iterations) * rate;
-    }
-    return left;
-  }
-  void report(const std::string& what) const {
-    std::printf("[%6.0f s elapsed, about %4.0f s left] %s\n", secondsSince(start_), secondsLeft(), what.c_str());
-    std::fflush(stdout);
-  }
-
- private:
-  Clock::time_point start_;
-  std::map<std::string, double> planned_, done_iterations_, done_seconds_;
-};
-
-std::string progressKind(const Config& config) {
-  if (config.solver == SolverKind::verlet) return "verlet";
-  return config.volume_weight > 0 ? "local_global volume" : "local_global";
 }
 
 // The mean over poses of one configuration's curve, for the summary.
@@ -387,6 +355,7 @@ void runConfig(const Config& config, ModelContext& model, const bench::BundledSc
     LocalGlobalSettings settings;
     settings.quasi_static = true;
     settings.volume_weight = config.volume_weight;
+    settings.lbfgs_history = config.lbfgs_history;
     settings.stopping_rule = StoppingRule::iterations;
     settings.max_iterations = config.cap;
     // Prefactored once per model and settings and reused for every pose, as MuscleSimulation does; reported apart.
@@ -432,6 +401,7 @@ void runConfig(const Config& config, ModelContext& model, const bench::BundledSc
       addMetrics(records, metrics);
       records.add("factorisation_ms", factorisation_ms);
       records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
+      records.add("lbfgs_history", config.lbfgs_history);
       records.end();
       return metrics;
     };
@@ -487,26 +457,28 @@ int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   std::filesystem::create_directories(options.out_dir);
   const auto start = Clock::now();
-  Progress progress(start);
 
   Budget budget;
   if (options.quick) {
     budget.verlet_cap = 200;
     budget.local_global_cap = 50;
     budget.local_global_volume_cap = 20;
-    budget.reference_cap = 600;
+    budget.lbfgs_cap = 50;
+    budget.reference_cap = 300;
     budget.other_reference_cap = 300;
     budget.resolution_reference_cap = 300;
-    budget.local_global_check_cap = 200;
+    budget.verlet_check_cap = 600;
     budget.resolutions = {20, 40};
   } else {
     budget.verlet_cap = 1500;
     budget.local_global_cap = 400;
     budget.local_global_volume_cap = 100;
-    budget.reference_cap = 8000;
-    budget.other_reference_cap = 4000;
-    budget.resolution_reference_cap = 8000;
-    budget.local_global_check_cap = 2000;
+    budget.lbfgs_cap = 300;
+    budget.reference_cap = 3000;
+    budget.other_reference_cap = 3000;
+    budget.resolution_reference_cap = 3000;
+    budget.verlet_check_cap = 20000;
+    budget.resolution_poses = 3;
     budget.resolutions = {20, 40, 60, 80};
   }
 
@@ -568,25 +540,40 @@ int main(int argc, char** argv) {
       config.label = "local_global " + default_label + (volume_weight > 0 ? " volume " : " ") + (warm ? "warm" : "cold");
       configs.push_back(config);
     }
+  for (const bool warm : {false, true}) {
+    Config config;
+    config.model = default_label;
+    config.solver = SolverKind::local_global;
+    config.lbfgs_history = kReferenceLbfgsHistory;
+    config.warm = warm;
+    config.cap = budget.lbfgs_cap;
+    config.label = "local_global " + default_label + " lbfgs" + std::to_string(kReferenceLbfgsHistory) + (warm ? " warm" : " cold");
+    configs.push_back(config);
+  }
 
-  // Plan for the time estimate: references (at most their cap) and every configuration.
+  // Work for the time estimate, in particle iterations over particles per fibre (the fibre count is the same for
+  // every model): references at their caps, the reference check, every configuration, the resolution study.
+  const auto work = [](double iterations, int particles_per_fibre) { return iterations * particles_per_fibre; };
+  double total_work = 0;
   for (const ModelChoice& model : models)
-    progress.plan("verlet",
-                  static_cast<double>((model.label == default_label ? 2 * budget.reference_cap : budget.other_reference_cap) *
-                                      frames.size()));
-  for (const Config& config : configs) progress.plan(progressKind(config), static_cast<double>(config.cap * frames.size()));
-  progress.plan("local_global", budget.local_global_check_cap + budget.local_global_cap);
+    total_work += work(static_cast<double>(model.label == default_label ? 2 * budget.reference_cap : budget.other_reference_cap) *
+                           static_cast<double>(frames.size()),
+                       budget.particles_per_fibre);
+  for (const Config& config : configs)
+    total_work += work(static_cast<double>(config.cap) * static_cast<double>(frames.size()), budget.particles_per_fibre);
+  total_work += work(budget.verlet_check_cap + budget.reference_cap, budget.particles_per_fibre);
   for (const int ppf : budget.resolutions)
     if (ppf != budget.particles_per_fibre)
-      progress.plan("verlet " + std::to_string(ppf),
-                    static_cast<double>(budget.resolution_reference_cap * resolution_frames.size()));
+      total_work += work(static_cast<double>(budget.resolution_reference_cap) * static_cast<double>(resolution_frames.size()), ppf);
+  bench::Progress progress("speed_vs_error", total_work);
 
   std::printf("speed against error: thigh13, %d particles per fibre, gait frames", budget.particles_per_fibre);
   for (const std::size_t frame : frames) std::printf(" %zu", frame);
-  std::printf("; caps: Verlet %d, local/global %d (with volume term %d); references: Verlet to %.0e m per iteration "
-              "or %d iterations (default layout), %d (other layouts), %d (resolution study)\n",
-              budget.verlet_cap, budget.local_global_cap, budget.local_global_volume_cap, kReferenceToleranceM,
-              budget.reference_cap, budget.other_reference_cap, budget.resolution_reference_cap);
+  std::printf("; caps: Verlet %d, local/global %d (with volume term %d, L-BFGS %d); references: local/global L-BFGS(%d) to "
+              "%.0e m per iteration or %d iterations (default layout), %d (other layouts), %d (resolution study)\n",
+              budget.verlet_cap, budget.local_global_cap, budget.local_global_volume_cap, budget.lbfgs_cap,
+              kReferenceLbfgsHistory, kReferenceToleranceM, budget.reference_cap, budget.other_reference_cap,
+              budget.resolution_reference_cap);
 
   bench::JsonRecords records;
   std::vector<CurveSummary> summaries(configs.size()), check_summaries(configs.size());
@@ -606,18 +593,18 @@ int main(int argc, char** argv) {
       model->reference_drift_mm[frame] = reference.drift_last_half_mm;
       if (is_default) default_references[frame] = reference;
       recordReference(records, *model, bundled, frame, reference);
-      progress.done("verlet", model->reference_cap, reference.wall_ms / 1e3);
       if (is_default) {
         const ReferenceSolve before = solveReference(*model, bundled, neighbourFrame(frame));
         model->previous_converged[frame] = before.position;
-        progress.done("verlet", model->reference_cap, before.wall_ms / 1e3);
         std::printf("  converged frame %zu for the warm start of frame %zu: %d iterations, last mean displacement %.2e m, "
                     "moved %.3f mm RMS since iteration %d\n",
                     neighbourFrame(frame), frame, before.stats.iterations, before.stats.mean_displacement_m,
                     before.drift_last_half_mm, before.drift_from_iteration);
       }
     }
-    progress.report("references of " + choice.label);
+    progress.finished("references of " + choice.label,
+                      work(static_cast<double>((is_default ? 2 : 1) * model->reference_cap) * static_cast<double>(frames.size()),
+                           budget.particles_per_fibre));
 
     if (is_default) {
       // The checkpointed solves must be the solves MuscleSimulation runs: its own solve, stopped at a checkpoint's
@@ -626,12 +613,12 @@ int main(int argc, char** argv) {
       CollisionWorld& world = model->world(BroadPhaseKind::octree);
       const int same_cap = budget.local_global_cap;
       SimulationSettings short_settings = model->simulation->settings();
-      short_settings.solver.stopping_rule = StoppingRule::iterations;
-      short_settings.solver.max_iterations = same_cap;
+      short_settings.local_global.stopping_rule = StoppingRule::iterations;
+      short_settings.local_global.max_iterations = same_cap;
       MuscleSimulation short_simulation(bundled.scene.muscles, bundled.scene.bones, short_settings);
       short_simulation.solve(bench::gaitPose(bundled, check_frame), StartMode::cold);
       world.setBoneTransforms(transforms);
-      VerletSolver short_solver(model->system(), short_settings.solver);
+      LocalGlobalSolver short_solver(model->system(), short_settings.local_global);
       const bench::ConvergenceRun short_run =
           bench::coldSolve(model->system(), transforms, &world, same_cap,
                            [&](ParticleState& state, const AfterUpdateHook& hook) { return short_solver.solve(state, hook); });
@@ -639,66 +626,74 @@ int main(int argc, char** argv) {
       std::printf("  MuscleSimulation against the checkpointed solve after %d iterations: %.3g mm RMS apart\n", same_cap,
                   harness_difference_mm);
 
-      // Which solver gives the trustworthy converged shape: the local/global quasi-static solver run cold to the same
-      // rule, and the same solver started at the Verlet reference (a converged shape should not move).
-      const auto check_start = Clock::now();
-      LocalGlobalSettings check_settings;
-      check_settings.stopping_rule = StoppingRule::displacement;
-      check_settings.displacement_tolerance_m = kReferenceToleranceM;
-      check_settings.max_iterations = budget.local_global_check_cap;
-      LocalGlobalSolver check_solver(model->system(), check_settings);
-      const bench::ConvergenceRun lg_run =
-          bench::coldSolve(model->system(), transforms, &world, budget.local_global_check_cap,
-                           [&](ParticleState& state, const AfterUpdateHook& hook) { return check_solver.solve(state, hook); });
+      // Which solver gives the trustworthy converged shape: damped Verlet and L-BFGS with a shorter history, each run
+      // cold to the same rule, compared with the reference.
       const Eigen::Matrix3Xd& reference = model->reference.at(check_frame);
-      const double lg_to_reference_mm = bench::rmsMillimetres(lg_run.final_position, reference);
-      double lg_drift_mm = 0;
-      int lg_drift_from = 0;
-      for (const bench::Checkpoint& checkpoint : lg_run.checkpoints)
-        if (2 * checkpoint.iteration <= lg_run.stats.iterations) {
-          lg_drift_from = checkpoint.iteration;
-          lg_drift_mm = bench::rmsMillimetres(checkpoint.position, lg_run.final_position);
-        }
-      ParticleState from_reference;
-      from_reference.position = reference;
-      from_reference.previous_position = reference;
-      LocalGlobalSettings settle_settings;
-      settle_settings.stopping_rule = StoppingRule::iterations;
-      settle_settings.max_iterations = budget.local_global_cap;
-      LocalGlobalSolver settler(model->system(), settle_settings);
-      settler.solve(from_reference, [&](ParticleState& state) { return world.resolve(state); });
-      const double lg_moves_reference_mm = bench::rmsMillimetres(from_reference.position, reference);
-      progress.done("local_global", budget.local_global_check_cap + budget.local_global_cap, secondsSince(check_start));
-      std::printf("  reference check, frame %zu: local/global cold to the same rule ran %d iterations (%.0f ms, last "
-                  "mean displacement %.2e m, rule %s, moved %.3f mm since iteration %d) and ends %.3f mm RMS from the "
-                  "Verlet reference; local/global started at the reference moves it %.3f mm RMS in %d iterations\n",
-                  check_frame, lg_run.stats.iterations, lg_run.stats.total_ms, lg_run.stats.mean_displacement_m,
-                  lg_run.stats.stopping_rule_met ? "met" : "not met", lg_drift_mm, lg_drift_from, lg_to_reference_mm,
-                  lg_moves_reference_mm, budget.local_global_cap);
-      records.begin();
-      addCommon(records, "reference_check", "reference check", "local_global", "quasi_static", choice.label, "fixed", 0,
-                0, "octree", "cold", 0, budget.particles_per_fibre, check_frame);
-      records.add("iterations", lg_run.stats.iterations);
-      records.add("wall_ms", lg_run.stats.total_ms);
-      records.add("last_mean_displacement_m", lg_run.stats.mean_displacement_m);
-      records.add("tolerance_reached", lg_run.stats.stopping_rule_met ? 1 : 0);
-      records.add("drift_last_half_mm", lg_drift_mm);
-      records.add("drift_from_iteration", lg_drift_from);
-      records.add("local_global_cold_to_reference_rms_mm", lg_to_reference_mm);
-      records.add("local_global_from_reference_iterations", budget.local_global_cap);
-      records.add("local_global_from_reference_moves_rms_mm", lg_moves_reference_mm);
-      records.add("simulation_vs_checkpointed_rms_mm", harness_difference_mm);
-      records.add("simulation_vs_checkpointed_iterations", same_cap);
-      records.end();
+      struct CheckSolve {
+        std::string solver;
+        int lbfgs_history;
+        bench::ConvergenceRun run;
+      };
+      std::vector<CheckSolve> checks;
+      {
+        SolverSettings verlet_settings;
+        verlet_settings.stopping_rule = StoppingRule::displacement;
+        verlet_settings.displacement_tolerance_m = kReferenceToleranceM;
+        verlet_settings.max_iterations = budget.verlet_check_cap;
+        VerletSolver verlet(model->system(), verlet_settings);
+        checks.push_back({"verlet", 0, bench::coldSolve(model->system(), transforms, &world, budget.verlet_check_cap,
+                                                        [&](ParticleState& state, const AfterUpdateHook& hook) {
+                                                          return verlet.solve(state, hook);
+                                                        })});
+        LocalGlobalSolver lbfgs(model->system(), referenceSettings(budget.reference_cap, kCheckLbfgsHistory));
+        checks.push_back({"local_global", kCheckLbfgsHistory,
+                          bench::coldSolve(model->system(), transforms, &world, budget.reference_cap,
+                                           [&](ParticleState& state, const AfterUpdateHook& hook) {
+                                             return lbfgs.solve(state, hook);
+                                           })});
+      }
+      for (const CheckSolve& check : checks) {
+        const bench::ConvergenceRun& run = check.run;
+        double drift_mm = 0;
+        int drift_from = 0;
+        for (const bench::Checkpoint& checkpoint : run.checkpoints)
+          if (2 * checkpoint.iteration <= run.stats.iterations) {
+            drift_from = checkpoint.iteration;
+            drift_mm = bench::rmsMillimetres(checkpoint.position, run.final_position);
+          }
+        const double to_reference_mm = bench::rmsMillimetres(run.final_position, reference);
+        std::printf("  reference check, frame %zu: %s (L-BFGS history %d) cold to the same rule ran %d iterations (%.0f "
+                    "ms, last mean displacement %.2e m, rule %s, moved %.3f mm since iteration %d) and ends %.3f mm RMS "
+                    "from the reference\n",
+                    check_frame, check.solver.c_str(), check.lbfgs_history, run.stats.iterations, run.stats.total_ms,
+                    run.stats.mean_displacement_m, run.stats.stopping_rule_met ? "met" : "not met", drift_mm, drift_from,
+                    to_reference_mm);
+        records.begin();
+        addCommon(records, "reference_check", "reference check " + check.solver, check.solver,
+                  check.solver == "verlet" ? "dynamic" : "quasi_static", choice.label, "fixed",
+                  check.solver == "verlet" ? kAutoStepFraction * model->stability_bound_s : 0,
+                  check.solver == "verlet" ? kAutoStepFraction : 0, "octree", "cold", 0, budget.particles_per_fibre,
+                  check_frame);
+        records.add("lbfgs_history", check.lbfgs_history);
+        records.add("iterations", run.stats.iterations);
+        records.add("wall_ms", run.stats.total_ms);
+        records.add("rms_mm", to_reference_mm);
+        records.add("last_mean_displacement_m", run.stats.mean_displacement_m);
+        records.add("tolerance_reached", run.stats.stopping_rule_met ? 1 : 0);
+        records.add("drift_last_half_mm", drift_mm);
+        records.add("drift_from_iteration", drift_from);
+        records.add("simulation_vs_checkpointed_rms_mm", harness_difference_mm);
+        records.add("simulation_vs_checkpointed_iterations", same_cap);
+        records.end();
+      }
+      progress.finished("reference check", work(budget.verlet_check_cap + budget.reference_cap, budget.particles_per_fibre));
     }
 
     for (std::size_t c = 0; c < configs.size(); ++c) {
       if (configs[c].model != choice.label) continue;
-      const auto config_start = Clock::now();
       runConfig(configs[c], *model, bundled, frames, check_frame, records, summaries[c], check_summaries[c]);
-      progress.done(progressKind(configs[c]), static_cast<double>(configs[c].cap * frames.size()),
-                    secondsSince(config_start));
-      progress.report(configs[c].label);
+      progress.finished(configs[c].label,
+                        work(static_cast<double>(configs[c].cap) * static_cast<double>(frames.size()), budget.particles_per_fibre));
     }
   }
 
@@ -706,12 +701,9 @@ int main(int argc, char** argv) {
   std::vector<std::vector<std::vector<Vertices>>> surfaces_by_resolution(budget.resolutions.size());
   std::vector<std::vector<ReferenceSolve>> solves_by_resolution(budget.resolutions.size());
   std::vector<std::vector<PointMetrics>> metrics_by_resolution(budget.resolutions.size());
-  std::vector<double> step_by_resolution(budget.resolutions.size());
   for (std::size_t r = 0; r < budget.resolutions.size(); ++r) {
     const int ppf = budget.resolutions[r];
-    const auto resolution_start = Clock::now();
     std::unique_ptr<ModelContext> model = makeModel(bundled, default_model, ppf, budget.resolution_reference_cap);
-    step_by_resolution[r] = kAutoStepFraction * model->stability_bound_s;
     for (const std::size_t frame : resolution_frames) {
       ReferenceSolve solve;
       if (ppf == budget.particles_per_fibre && default_references.count(frame)) {
@@ -727,11 +719,10 @@ int main(int argc, char** argv) {
       surfaces_by_resolution[r].push_back(model->surfaces);  // measurePoint left the skinned surfaces here
       solves_by_resolution[r].push_back(solve);
     }
-    if (ppf != budget.particles_per_fibre)
-      progress.done("verlet " + std::to_string(ppf),
-                    static_cast<double>(budget.resolution_reference_cap * resolution_frames.size()),
-                    secondsSince(resolution_start));
-    progress.report("resolution " + std::to_string(ppf) + " particles per fibre");
+    progress.finished("resolution " + std::to_string(ppf) + " particles per fibre",
+                      ppf == budget.particles_per_fibre
+                          ? 0.0
+                          : work(static_cast<double>(budget.resolution_reference_cap) * static_cast<double>(resolution_frames.size()), ppf));
   }
   const std::size_t finest = budget.resolutions.size() - 1;
   std::printf("\nresolution (converged surfaces against %d particles per fibre):\n", budget.resolutions[finest]);
@@ -749,9 +740,10 @@ int main(int argc, char** argv) {
       metrics.rms_mm = 1e3 * std::sqrt(squared / static_cast<double>(vertices));
       const ReferenceSolve& solve = solves_by_resolution[r][f];
       records.begin();
-      addCommon(records, "resolution", "resolution " + std::to_string(budget.resolutions[r]), "verlet", "dynamic",
-                default_label, "fixed", step_by_resolution[r], kAutoStepFraction, "octree", "cold", 0, budget.resolutions[r],
+      addCommon(records, "resolution", "resolution " + std::to_string(budget.resolutions[r]), "local_global",
+                "quasi_static", default_label, "fixed", 0, 0, "octree", "cold", 0, budget.resolutions[r],
                 resolution_frames[f]);
+      records.add("lbfgs_history", kReferenceLbfgsHistory);
       records.add("iterations", solve.stats.iterations);
       records.add("wall_ms", solve.wall_ms);
       addMetrics(records, metrics);
