@@ -10,11 +10,6 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
   system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
-  // The local/global solver factorises its matrix here, once: it depends on the model and settings, not the pose.
-  if (settings_.solver_kind == SolverKind::local_global)
-    local_global_solver_ = std::make_unique<LocalGlobalSolver>(system_, settings_.local_global);
-  else
-    solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
   if (settings_.collisions) {
     std::vector<SphereSet> bone_spheres;
     for (const Bone& bone : bones_) bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings_.collision.bone_sphere_rule));
@@ -23,6 +18,13 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
     for (const Bone& bone : bones_) bone_names.push_back(bone.name);
     collision_ = std::make_unique<CollisionWorld>(system_, std::move(bone_spheres), settings_.collision, bone_names);
   }
+  // After the collision set-up: both solvers read the sphere radii it may shrink (the local/global contact weights,
+  // the adaptive step's boundary particles). The local/global solver factorises its matrix here, once: it depends on
+  // the model and settings, not the pose.
+  if (settings_.solver_kind == SolverKind::local_global)
+    local_global_solver_ = std::make_unique<LocalGlobalSolver>(system_, settings_.local_global);
+  else
+    solver_ = std::make_unique<VerletSolver>(system_, settings_.solver);
   state_ = restState(system_);
 }
 

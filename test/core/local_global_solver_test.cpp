@@ -359,6 +359,39 @@ TEST(LocalGlobalSolver, InvalidSettingsAreRejected) {
   EXPECT_THROW(solverKindFromString("euler"), std::invalid_argument);
 }
 
+TEST(LocalGlobalSolver, MuscleSimulationFactorisesWithTheRadiiTheCollisionSetUpLeaves) {
+  // The contact weights come from the sphere radii, which clearRestOverlaps shrinks (to 0 for particles inside a bone
+  // sphere). A solver built before that set-up weighted particles that never collide.
+  const SyntheticScene scene = makeSyntheticThigh(2, 3);
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.solver_kind = SolverKind::local_global;
+  settings.local_global.max_iterations = 40;
+  settings.local_global.stopping_rule = StoppingRule::iterations;
+  MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+  ASSERT_GT(simulation.restOverlaps().spheres_removed + simulation.restOverlaps().muscle_bone_pairs, 0)
+      << "the scene must have rest overlaps for this test to mean anything";
+  const Pose pose = syntheticThighPose(0.4, 0.6);
+  simulation.solve(pose, StartMode::cold);
+
+  // The same solve from public pieces, every one built on the final system.
+  const MassSpringSystem& system = simulation.system();
+  std::vector<SphereSet> bone_spheres;
+  std::vector<std::string> bone_names;
+  for (const Bone& bone : simulation.bones()) {
+    bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings.collision.bone_sphere_rule));
+    bone_names.push_back(bone.name);
+  }
+  CollisionWorld world(system, bone_spheres, settings.collision, bone_names);
+  const BoneTransforms transforms = boneTransformsOf(simulation.bones(), pose);
+  world.setBoneTransforms(transforms);
+  ParticleState state;
+  rigidPretransform(system, transforms, state);
+  LocalGlobalSolver solver(system, settings.local_global);
+  solver.solve(state, [&](ParticleState& s) { return world.resolve(s); });
+  EXPECT_EQ((state.position - simulation.state().position).cwiseAbs().maxCoeff(), 0.0);
+}
+
 TEST(LocalGlobalSolver, MuscleSimulationRunsTheChosenSolver) {
   const SyntheticScene scene = makeSyntheticThigh(2, 3);
   SimulationSettings settings;
