@@ -19,6 +19,7 @@
 #include "muscle_deformation/core/spring_layout.hpp"
 #include "muscle_deformation/core/surface_skinning.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -49,6 +50,9 @@ constexpr double kAutoStepFraction = 0.9;
 constexpr double kReferenceToleranceM = 1e-7;
 constexpr int kReferenceLbfgsHistory = 16;
 constexpr int kCheckLbfgsHistory = 8;
+// Iterations per frame of the streaming runs (the node's situation: warm from the previous frame's result).
+constexpr int kStreamingVerletIterations[] = {1, 3, 10, 30, 100};
+constexpr int kStreamingLbfgsIterations[] = {1, 3, 10, 30};
 // Volume term weight of the local/global configurations that use one (relative to the springs' stiffness, see
 // LocalGlobalSettings::volume_weight); the local/global bench measured 1 better than 10 on the synthetic thigh.
 constexpr double kVolumeWeight = 1.0;
@@ -453,6 +457,51 @@ void printSummary(const std::string& title, const std::vector<Config>& configs,
   }
 }
 
+// The node's situation: the gait streamed through MuscleSimulation, every frame warm from the previous result with
+// `iterations_per_frame` iterations, as the node does. The cycle is played twice and the five reference frames are
+// measured on the second pass, so each starts warm from a stream that has run for a cycle. One curve point per
+// reference frame: iterations = iterations per frame, wall_ms = that frame's solve time.
+void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history, int iterations_per_frame,
+                  ModelContext& model, const bench::BundledScene& bundled, const std::vector<std::size_t>& frames,
+                  bench::JsonRecords& records) {
+  SimulationSettings settings = model.simulation->settings();
+  settings.solver_kind = solver;
+  settings.solver.stopping_rule = StoppingRule::iterations;
+  settings.solver.max_iterations = iterations_per_frame;
+  settings.local_global.stopping_rule = StoppingRule::iterations;
+  settings.local_global.max_iterations = iterations_per_frame;
+  settings.local_global.lbfgs_history = lbfgs_history;
+  MuscleSimulation stream(bundled.scene.muscles, bundled.scene.bones, settings);
+  const std::size_t frame_count = bundled.gait.frames.size();
+  double solve_ms_sum = 0;
+  for (int pass = 0; pass < 2; ++pass)
+    for (std::size_t frame = 0; frame < frame_count; ++frame) {
+      const Pose pose = bench::gaitPose(bundled, frame);
+      const FrameStats stats = stream.solve(pose, StartMode::warm);
+      if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
+      solve_ms_sum += stats.solve.total_ms;
+      const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), pose);
+      CollisionWorld& world = model.world(BroadPhaseKind::octree);
+      world.setBoneTransforms(transforms);
+      const PointMetrics metrics =
+          measurePoint(model, world, transforms, stream.state().position, model.reference.at(frame), false);
+      records.begin();
+      addCommon(records, "curve", label, toString(solver), solver == SolverKind::verlet ? "dynamic" : "quasi_static",
+                model.choice.label, "fixed", solver == SolverKind::verlet ? stream.settings().solver.dt_s : 0,
+                solver == SolverKind::verlet ? kAutoStepFraction : 0, "octree", "warm", 0, model.particles_per_fibre,
+                frame);
+      records.add("iterations", iterations_per_frame);
+      records.add("wall_ms", stats.solve.total_ms);
+      addMetrics(records, metrics);
+      records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
+      records.add("lbfgs_history", lbfgs_history);
+      records.add("streaming", 1);
+      records.end();
+    }
+  std::printf("    %-44s %3d iterations per frame: mean solve %.1f ms at the reference frames\n", label.c_str(),
+              iterations_per_frame, solve_ms_sum / static_cast<double>(frames.size()));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -563,6 +612,13 @@ int main(int argc, char** argv) {
   for (const Config& config : configs)
     total_work += work(static_cast<double>(config.cap) * static_cast<double>(frames.size()), budget.particles_per_fibre);
   total_work += work(budget.verlet_check_cap + budget.reference_cap, budget.particles_per_fibre);
+  // Streaming: two passes over the gait per iteration count; an L-BFGS iteration costs about three Verlet ones.
+  double streaming_work = 0;
+  for (const int per_frame : kStreamingVerletIterations)
+    streaming_work += work(2.0 * static_cast<double>(bundled.gait.frames.size()) * per_frame, budget.particles_per_fibre);
+  for (const int per_frame : kStreamingLbfgsIterations)
+    streaming_work += work(6.0 * static_cast<double>(bundled.gait.frames.size()) * per_frame, budget.particles_per_fibre);
+  total_work += streaming_work;
   for (const int ppf : budget.resolutions)
     if (ppf != budget.particles_per_fibre)
       total_work += work(static_cast<double>(budget.resolution_reference_cap) * static_cast<double>(resolution_frames.size()), ppf);
@@ -695,6 +751,15 @@ int main(int argc, char** argv) {
       runConfig(configs[c], *model, bundled, frames, check_frame, records, summaries[c], check_summaries[c]);
       progress.finished(configs[c].label,
                         work(static_cast<double>(configs[c].cap) * static_cast<double>(frames.size()), budget.particles_per_fibre));
+    }
+    if (is_default) {
+      for (const int per_frame : kStreamingVerletIterations)
+        runStreaming("verlet " + default_label + " streaming", SolverKind::verlet, 0, per_frame, *model, bundled, frames,
+                     records);
+      for (const int per_frame : kStreamingLbfgsIterations)
+        runStreaming("local_global " + default_label + " lbfgs" + std::to_string(kReferenceLbfgsHistory) + " streaming",
+                     SolverKind::local_global, kReferenceLbfgsHistory, per_frame, *model, bundled, frames, records);
+      progress.finished("streaming", streaming_work);
     }
   }
 
