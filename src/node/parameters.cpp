@@ -136,6 +136,7 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readEnum("solver", simulation.solver_kind, solverKindFromString);
   p.readDouble("volume_weight", simulation.local_global.volume_weight, 0.0, 1e6);
   p.readDouble("chebyshev_rho", simulation.local_global.chebyshev_rho, 0.0, 0.999);
+  p.readInt("lbfgs_history", simulation.local_global.lbfgs_history, 0, 1000);
   shareStoppingRule(simulation);
   const std::string local_global_problem = validate(simulation.local_global);
   if (!local_global_problem.empty()) p.fail("solver", local_global_problem);
