@@ -161,7 +161,9 @@ def speed_error_plot(curves, default_config, path):
             axis.axhline(target, color="grey", linewidth=0.6, linestyle=":")
         axis.axvline(TOTAL_BUDGET_60HZ_MS, color="red", linewidth=0.8, linestyle=":")
         axis.set_title(PANEL_TITLES[panel], fontsize=10)
-        axis.set_xlabel("wall time per pose, ms (mean over 5 gait poses)")
+        poses = max((curve[0]["poses"] for curve in curves.values() if curve), default=0)
+        axis.set_xlabel(("wall time per frame" if panel == "stream" else "wall time per pose")
+                        + f", ms (mean over {poses} gait poses; the start state, at 0 ms, is not shown)")
         axis.grid(True, which="both", linewidth=0.3)
         if shown:
             axis.legend(fontsize=7)
