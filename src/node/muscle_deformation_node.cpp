@@ -393,7 +393,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   if (selected.empty()) throw std::invalid_argument("muscles: the selection names no muscle");
 
   PipelineSettings settings = settings_.pipeline;
+  settings.simulation.solver_kind = settings_.service.solver_kind;
+  settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
   SolverSettings& solver = settings.simulation.solver;
+  solver.max_iterations = settings_.service.max_iterations;
   if (request.max_iterations > 0) solver.max_iterations = request.max_iterations;
   if (request.displacement_tolerance_m > 0) solver.displacement_tolerance_m = request.displacement_tolerance_m;
   if (request.time_budget_ms > 0) solver.time_budget_ms = request.time_budget_ms;

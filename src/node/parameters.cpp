@@ -137,6 +137,13 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readDouble("volume_weight", simulation.local_global.volume_weight, 0.0, 1e6);
   p.readDouble("chebyshev_rho", simulation.local_global.chebyshev_rho, 0.0, 0.999);
   p.readInt("lbfgs_history", simulation.local_global.lbfgs_history, 0, 1000);
+  ServiceSettings& service = settings.service;
+  p.readEnum("service_solver", service.solver_kind, solverKindFromString);
+  p.readInt("service_lbfgs_history", service.lbfgs_history, 0, 1000);
+  p.readInt("service_max_iterations", service.max_iterations, 1, 1000000);
+  LocalGlobalSettings service_local_global = simulation.local_global;
+  service_local_global.lbfgs_history = service.lbfgs_history;
+  if (const std::string problem = validate(service_local_global); !problem.empty()) p.fail("service_lbfgs_history", problem);
   shareStoppingRule(simulation);
   const std::string local_global_problem = validate(simulation.local_global);
   if (!local_global_problem.empty()) p.fail("solver", local_global_problem);

@@ -23,13 +23,22 @@ struct StreamSettings {
   double expected_rate_hz = 60.0;         // diagnostics: expected output rate
 };
 
+// The ~deform_pose service solves single poses cold, where the streaming solve runs warm: the fastest solver for each
+// differs (docs/BENCHMARKS.md, "Fastest configuration per error target"), so the service has its own.
+struct ServiceSettings {
+  SolverKind solver_kind = SolverKind::local_global;  // ~service_solver
+  int lbfgs_history = 16;                             // ~service_lbfgs_history (local_global only)
+  int max_iterations = 150;                           // ~service_max_iterations (a request's max_iterations wins)
+};
+
 struct NodeSettings {
   std::string package_root;              // of muscle_deformation
   std::string scene_path;                // ~scene
   std::vector<std::string> muscles;      // ~muscles: names or tags, empty = all
   std::string fixed_frame = "pelvis";    // ~fixed_frame
-  PipelineSettings pipeline;
+  PipelineSettings pipeline;  // the streaming solve's
   StreamSettings stream;
+  ServiceSettings service;
 };
 
 // Throws std::invalid_argument naming the parameter and what is wrong.
