@@ -50,6 +50,10 @@ inline NodeDefaults loadNodeDefaults() {
   s.solver.dt_s = yaml["dt_s"].as<double>();
   s.solver.damping_scale = yaml["damping_scale"].as<double>();
   s.solver.max_iterations = yaml["max_iterations"].as<int>();
+  s.solver_kind = md::solverKindFromString(yaml["solver"].as<std::string>());
+  s.local_global.lbfgs_history = yaml["lbfgs_history"].as<int>();
+  s.local_global.volume_weight = yaml["volume_weight"].as<double>();
+  s.local_global.max_iterations = s.solver.max_iterations;
   s.collisions = yaml["collisions"].as<bool>();
   require_same("broad_phase", md::toString(s.collision.broad_phase));
   s.collision.bone_reach_margin_m = yaml["bone_reach_margin_m"].as<double>();

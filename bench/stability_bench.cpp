@@ -3,6 +3,7 @@
 //
 //   stability_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
+#include "node_defaults.hpp"
 
 #include "muscle_deformation/core/local_global_solver.hpp"
 #include "muscle_deformation/core/scene.hpp"
@@ -159,7 +160,7 @@ int main(int argc, char** argv) {
   Report report(records);
   constexpr double kDegree = 3.14159265358979323846 / 180.0;
 
-  SimulationSettings settings;  // the node's defaults (config/muscle_deformation.yaml): 20 per fibre, 100 iterations
+  const SimulationSettings settings = bench::loadNodeDefaults().simulation;  // config/muscle_deformation.yaml
   const Bundled thigh = loadBundled({"thigh13"});
   std::printf("[%6.1f s] loaded thigh13\n", report.elapsedSeconds());
   const Pose walking = jointPose(thigh, 0.5, 1.0);

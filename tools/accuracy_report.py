@@ -319,8 +319,8 @@ def stability_section(rows):
     cases = [row for row in rows if row.get("case") != "pbd_femur_flexion"]
     pbd = [row for row in rows if row.get("case") == "pbd_femur_flexion"]
     lines = ["## Stability on hard cases (report issue)", "",
-             "The bundled thigh13 muscles at 20 particles per fibre with the node's defaults (100 Verlet iterations per "
-             "frame). Every case is also a gtest on the synthetic scene (`test/core/stability_test.cpp`), where the "
+             "The bundled thigh13 muscles at 20 particles per fibre with the node's defaults "
+             "(`config/muscle_deformation.yaml`; iterations per frame in the table). Every case is also a gtest on the synthetic scene (`test/core/stability_test.cpp`), where the "
              "recovered error is asserted against stated bounds. Divergence: three growing, direction-reversing steps "
              "above a quarter of the mean spring rest length; recovery restores the solve's start and halves dt "
              "(kept for later frames). Raw numbers: `out/bench/stability.json`.", ""]
@@ -359,7 +359,8 @@ def economy_section(rows):
 
     lines = ["## Model only what a scene needs (report issue)", "",
              "What each economy buys on the bundled scene at 20 particles per fibre with the node's defaults (warm "
-             "start, 100 iterations per frame), over the 73 frames of the gait. Frame times are medians, wall "
+             f"start, {int(rows[0].get('iterations_per_frame', 0))} iterations per frame), over the 73 frames of the gait. "
+             "Frame times are medians, wall "
              "(thread CPU in brackets). Raw numbers: `out/bench/economy.json`.", ""]
     subsets = of("muscle_subset")
     if subsets:

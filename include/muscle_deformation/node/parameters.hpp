@@ -28,7 +28,7 @@ struct StreamSettings {
 struct ServiceSettings {
   SolverKind solver_kind = SolverKind::local_global;  // ~service_solver
   int lbfgs_history = 16;                             // ~service_lbfgs_history (local_global only)
-  int max_iterations = 150;                           // ~service_max_iterations (a request's max_iterations wins)
+  int max_iterations = 120;                           // ~service_max_iterations (a request's max_iterations wins)
 };
 
 struct NodeSettings {
