@@ -250,6 +250,7 @@ def speed_error_section(points, img_dir, img_link_prefix="img/"):
                 cells.append(_number(match[0]["rms_mm"]) if match else "-")
             lines.append(f"| {ppf} | " + " | ".join(cells) + " |")
         lines += [""]
+    lines += implicit_targets_section(points)
     lines += ["### Every configuration", "",
               "| configuration | start | poses | RMS mm at the last point (iterations, ms) | first point <= 5 / 2 / 1 mm "
               "(ms) | volume error % at the last point |", "|---|---|---|---|---|---|"]
@@ -264,6 +265,47 @@ def speed_error_section(points, img_dir, img_link_prefix="img/"):
         lines.append(f"| `{config}` | {start} | {last['poses']} | {last['rms_mm']:.2f} ({last['iterations']}, "
                      f"{last['wall_ms']:.0f}) | {' / '.join(firsts)} | {last['volume_error_pct']:.2f} |")
     return lines + [""], choices
+
+
+def implicit_targets_section(points):
+    """The beyond-the-seeds issue's targets, judged on the thigh13 points of speed_vs_error.json."""
+    curves = convergence_curves(points)
+    lines = ["### The implicit solver's targets on thigh13 (beyond-the-seeds issue)", ""]
+    cold = [(config, curve) for (config, start), curve in curves.items()
+            if start == "cold" and curve and curve[0]["sample"]["solver"] == "local_global"]
+    reached = []
+    for config, curve in cold:
+        point = next((p for p in curve if p["rms_mm"] <= 1.0), None)
+        if point:
+            reached.append((point["wall_ms"], config, point))
+    if reached:
+        wall_ms, config, point = min(reached, key=lambda item: item[0])
+        verdict = "met" if wall_ms <= 570 else f"missed by {wall_ms / 570:.1f}x"
+        lines.append(f"- Cold single pose within 1 mm RMS in <= 570 ms (aim 100 ms): `{config}` gets there in "
+                     f"{wall_ms:.0f} ms ({point['iterations']} iterations, mean over the poses; worst pose "
+                     f"{point['rms_max_mm']:.2f} mm): **{verdict}**. Its references come from the same solver, and the "
+                     "converged shape itself is only defined to about half a millimetre (above), so the 1 mm target "
+                     "sits close to what can be measured here.")
+    else:
+        best = min(((curve[-1]["rms_mm"], config, curve[-1]) for config, curve in cold), default=None,
+                   key=lambda item: item[0])
+        if best:
+            lines.append(f"- Cold single pose within 1 mm RMS in <= 570 ms: **missed**; the best local/global "
+                         f"configuration, `{best[1]}`, is at {best[0]:.2f} mm after {best[2]['wall_ms']:.0f} ms.")
+    volume = [(config, start, curve) for (config, start), curve in curves.items()
+              if curve and curve[0]["sample"].get("volume_weight", 0) > 0]
+    for config, start, curve in volume:
+        rows = [p for p in points if p.get("config") == config and p.get("kind", "curve") == "curve"
+                and int(p["iterations"]) == curve[-1]["iterations"]]
+        mean = _mean([p["volume_error_pct"] for p in rows])
+        worst = max(p.get("volume_error_max_pct", float("nan")) for p in rows)
+        verdict = "met" if mean <= 1.0 and worst <= 3.0 else "missed"
+        lines.append(f"- Volume error with the volume term (`{config}`, {start}, after {curve[-1]['iterations']} "
+                     f"iterations, skinned surfaces over the {len(rows)} poses): mean {mean:.2f} %, worst muscle "
+                     f"{worst:.2f} % against <= 1 % / <= 3 %: **{verdict}**.")
+    lines += ["- Stable at 10x the largest stable Verlet step: tested (`LocalGlobalSolver.LargeTimeStepsStay"
+              "StableWhereVerletBlowsUp`) and measured on the synthetic thigh in the local/global section below.", ""]
+    return lines
 
 
 # ---------------------------------------------------------------------------------------------------------------
