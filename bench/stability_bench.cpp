@@ -2,7 +2,9 @@
 // the 2019 PBD thesis' femur flexion scenario on our data. Writes out/bench/stability.json: one object per case.
 //
 //   stability_bench [--out DIR] [--quick]
+#include "bench_scene.hpp"
 #include "bench_util.hpp"
+#include "convergence_run.hpp"
 #include "node_defaults.hpp"
 
 #include "muscle_deformation/core/local_global_solver.hpp"
@@ -21,30 +23,9 @@ using namespace muscle_deformation;
 
 namespace {
 
-const std::string kPackage = MD_PACKAGE_DIR;
-
-struct Bundled {
-  SceneDescription description;
-  Skeleton skeleton;
-  Scene scene;
-};
-
-Bundled loadBundled(const std::vector<std::string>& selection) {
-  SceneDescription description = loadSceneDescription(kPackage + "/config/scenes/right_hip_thigh.yaml");
-  Skeleton skeleton = Skeleton::fromUrdfFile(kPackage + "/" + description.urdf_file);
-  Scene scene = loadScene(description, skeleton, makeUriResolver({{"muscle_deformation", kPackage}}, kPackage), kPackage,
-                          selection);
-  return {std::move(description), std::move(skeleton), std::move(scene)};
-}
-
 // gait2392: hip_flexion_r positive is flexion, knee_angle_r negative is flexion.
-Pose jointPose(const Bundled& bundled, double hip_flexion_rad, double knee_flexion_rad) {
-  return poseFromLinkPoses(bundled.scene,
-                           bundled.skeleton.linkPoses({{"hip_flexion_r", hip_flexion_rad}, {"knee_angle_r", -knee_flexion_rad}}));
-}
-
-double rmsDistance(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
-  return std::sqrt((a - b).colwise().squaredNorm().mean());
+Pose jointPose(const bench::BundledScene& bundled, double hip_flexion_rad, double knee_flexion_rad) {
+  return bench::poseFor(bundled, {{"hip_flexion_r", hip_flexion_rad}, {"knee_angle_r", -knee_flexion_rad}});
 }
 
 Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& pose) {
@@ -106,7 +87,7 @@ void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const Fram
 class Report {
  public:
   explicit Report(bench::JsonRecords& records) : records_(records), start_(std::chrono::steady_clock::now()) {}
-  void add(const std::string& name, const std::string& description, const Outcome& outcome, double rms_to_pretransform_m,
+  void add(const std::string& name, const std::string& description, const Outcome& outcome, double rms_to_pretransform_mm,
            double volume_error_pct, const MassSpringSystem& system) {
     records_.begin();
     records_.add("case", name);
@@ -119,7 +100,7 @@ class Report {
     records_.add("iterations", outcome.iterations);
     records_.add("wall_ms", outcome.wall_ms);
     records_.add("time_step_s", outcome.time_step_s);
-    records_.add("rms_to_pretransform_mm", rms_to_pretransform_m * 1e3);
+    records_.add("rms_to_pretransform_mm", rms_to_pretransform_mm);
     records_.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);
     records_.add("max_penetration_sphere_muscle_mm", outcome.max_penetration_muscle_m * 1e3);
     records_.add("particle_volume_error_max_pct", volume_error_pct);  // tetrahedra over the particles
@@ -128,7 +109,7 @@ class Report {
                 "bone penetration %.2f mm, particle-volume error max %.2f %%\n",
                 elapsedSeconds(), name.c_str(), outcome.recoveries, outcome.diverged ? " (gave up)" : "",
                 outcome.finite ? "finite" : "NOT FINITE", outcome.iterations, outcome.wall_ms,
-                rms_to_pretransform_m * 1e3, outcome.max_penetration_bone_m * 1e3, volume_error_pct);
+                rms_to_pretransform_mm, outcome.max_penetration_bone_m * 1e3, volume_error_pct);
     std::fflush(stdout);
   }
   double elapsedSeconds() const {
@@ -141,14 +122,14 @@ class Report {
 };
 
 // One pose solved on a fresh thigh13 simulation, starting as `start` after an optional rest frame.
-void poseCase(Report& report, const Bundled& bundled, const std::string& name, const std::string& description,
+void poseCase(Report& report, const bench::BundledScene& bundled, const std::string& name, const std::string& description,
               const SimulationSettings& settings, const Pose& pose, bool warm_from_rest) {
   MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
   const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
   if (warm_from_rest) simulation.solve(jointPose(bundled, 0, 0), StartMode::warm);
   Outcome outcome;
   accumulate(outcome, simulation, simulation.solve(pose, warm_from_rest ? StartMode::warm : StartMode::cold));
-  report.add(name, description, outcome, rmsDistance(simulation.state().position, pretransformOf(simulation, pose)),
+  report.add(name, description, outcome, bench::rmsMillimetres(simulation.state().position, pretransformOf(simulation, pose)),
              maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
 }
 
@@ -161,7 +142,7 @@ int main(int argc, char** argv) {
   constexpr double kDegree = 3.14159265358979323846 / 180.0;
 
   const SimulationSettings settings = bench::loadNodeDefaults().simulation;  // config/muscle_deformation.yaml
-  const Bundled thigh = loadBundled({"thigh13"});
+  const bench::BundledScene thigh = bench::loadBundledScene({"thigh13"});
   std::printf("[%6.1f s] loaded thigh13\n", report.elapsedSeconds());
   const Pose walking = jointPose(thigh, 0.5, 1.0);
 
@@ -195,8 +176,8 @@ int main(int argc, char** argv) {
     const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
     Outcome outcome;
     accumulate(outcome, simulation, simulation.solve(jointPose(thigh, 0, 0), StartMode::cold));
-    const double rest_rms_m = rmsDistance(simulation.state().position, simulation.system().rest_position);
-    report.add("interpenetrated_rest", "segmented overlaps at rest, rest pose solved", outcome, rest_rms_m,
+    const double rest_rms_mm = bench::rmsMillimetres(simulation.state().position, simulation.system().rest_position);
+    report.add("interpenetrated_rest", "segmented overlaps at rest, rest pose solved", outcome, rest_rms_mm,
                maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
   }
 
@@ -212,14 +193,14 @@ int main(int argc, char** argv) {
       accumulate(outcome, simulation, simulation.solve(pose, StartMode::warm));
     }
     report.add("fast_bones", "hip and knee 0.2 rad per warm frame to 1 rad (bone faster than a radius per frame)",
-               outcome, rmsDistance(simulation.state().position, pretransformOf(simulation, pose)),
+               outcome, bench::rmsMillimetres(simulation.state().position, pretransformOf(simulation, pose)),
                maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
   }
 
   // The 2019 PBD thesis' scenario: the femur flexes 1 rad forward and back over 200 frames, warm every frame; how far
   // does the gluteus maximus end from its starting shape, and how deep do particles sink into bone on the way.
   {
-    const Bundled with_gluteus = loadBundled({"thigh13", "gluteus_maximus"});
+    const bench::BundledScene with_gluteus = bench::loadBundledScene({"thigh13", "gluteus_maximus"});
     MuscleSimulation simulation(with_gluteus.scene.muscles, with_gluteus.scene.bones, settings);
     const MassSpringSystem& system = simulation.system();
     int gluteus = -1;
@@ -230,15 +211,15 @@ int main(int argc, char** argv) {
     simulation.solve(jointPose(with_gluteus, 0, 0), StartMode::warm);
     const Eigen::Matrix3Xd start = simulation.state().position.middleCols(begin, count);
     Outcome outcome;
-    double peak_rms_m = 0;
+    double peak_rms_mm = 0;
     for (int frame = 1; frame <= frames; ++frame) {
       const double hip_rad = 1.0 - std::abs(1.0 - 2.0 * frame / frames);  // 0 -> 1 rad -> 0
       accumulate(outcome, simulation, simulation.solve(jointPose(with_gluteus, hip_rad, 0), StartMode::warm));
-      peak_rms_m = std::max(peak_rms_m, rmsDistance(simulation.state().position.middleCols(begin, count), start));
+      peak_rms_mm = std::max(peak_rms_mm, bench::rmsMillimetres(simulation.state().position.middleCols(begin, count), start));
       if (frame % 20 == 0)
         std::printf("[%6.1f s]   pbd frame %d/%d, hip %.2f rad\n", report.elapsedSeconds(), frame, frames, hip_rad);
     }
-    const double end_rms_m = rmsDistance(simulation.state().position.middleCols(begin, count), start);
+    const double end_rms_mm = bench::rmsMillimetres(simulation.state().position.middleCols(begin, count), start);
     records.begin();
     records.add("case", std::string("pbd_femur_flexion"));
     records.add("description", std::string("thigh13 + gluteus_maximus, hip_flexion_r 0 -> 1 rad -> 0 over ") +
@@ -247,8 +228,8 @@ int main(int argc, char** argv) {
     records.add("particles", static_cast<double>(system.particleCount()));
     records.add("gluteus_particles", static_cast<double>(count));
     records.add("median_sphere_radius_mm", medianSphereRadius(system) * 1e3);
-    records.add("gluteus_end_rms_to_start_mm", end_rms_m * 1e3);
-    records.add("gluteus_peak_rms_to_start_mm", peak_rms_m * 1e3);
+    records.add("gluteus_end_rms_to_start_mm", end_rms_mm);
+    records.add("gluteus_peak_rms_to_start_mm", peak_rms_mm);
     records.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);
     records.add("max_penetration_sphere_muscle_mm", outcome.max_penetration_muscle_m * 1e3);
     records.add("recoveries", outcome.recoveries);
@@ -259,7 +240,7 @@ int main(int argc, char** argv) {
     records.end();
     std::printf("[%6.1f s] pbd_femur_flexion: gluteus maximus ends %.2f mm RMS from its start (peak %.2f mm), max "
                 "bone penetration %.2f mm, recoveries %d, %s\n",
-                report.elapsedSeconds(), end_rms_m * 1e3, peak_rms_m * 1e3, outcome.max_penetration_bone_m * 1e3,
+                report.elapsedSeconds(), end_rms_mm, peak_rms_mm, outcome.max_penetration_bone_m * 1e3,
                 outcome.recoveries, outcome.finite ? "finite" : "NOT FINITE");
   }
 
