@@ -324,6 +324,7 @@ void LocalGlobalSolver::buildAndFactorise() {
   factorisation_ms_ = millisecondsSince(start);
 }
 
+template <bool kWithEnergy>
 double LocalGlobalSolver::addProjections(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& rhs) const {
   // Each spring's optimal auxiliary vector d is its current direction at rest length; it enters as k d for the first
   // particle and -k d for the second.
@@ -334,7 +335,7 @@ double LocalGlobalSolver::addProjections(const Eigen::Matrix3Xd& position, Eigen
   for (const Spring& s : springs_) {
     const double dx = x[3 * s.a] - x[3 * s.b], dy = x[3 * s.a + 1] - x[3 * s.b + 1], dz = x[3 * s.a + 2] - x[3 * s.b + 2];
     const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
-    energy += 0.5 * s.stiffness * (length - s.rest_length) * (length - s.rest_length);
+    if constexpr (kWithEnergy) energy += 0.5 * s.stiffness * (length - s.rest_length) * (length - s.rest_length);
     // Coincident particles give no direction; d = 0 pulls them together for one iteration and they separate after.
     const double scale = length > 0 ? s.stiffness * s.rest_length / length : 0.0;
     if (s.fa >= 0) {
@@ -359,7 +360,7 @@ double LocalGlobalSolver::addProjections(const Eigen::Matrix3Xd& position, Eigen
     Eigen::Matrix3d target = deformation;
     if (!(determinant >= low && determinant <= high))
       target = projectDeterminant(deformation, determinant < low ? low : high);
-    energy += 0.5 * term.weight * (deformation - target).squaredNorm();
+    if constexpr (kWithEnergy) energy += 0.5 * term.weight * (deformation - target).squaredNorm();
     const Eigen::Matrix<double, 3, 4> g = gradientOperator(term.rest_inverse);
     const Eigen::Matrix<double, 3, 4> force = term.weight * target * g;
     for (int j = 0; j < 4; ++j) {
@@ -375,7 +376,7 @@ double LocalGlobalSolver::addProjections(const Eigen::Matrix3Xd& position, Eigen
 
 void LocalGlobalSolver::localGlobalIteration(const ParticleState& state) {
   rhs_ = inertial_target_ + fixed_rhs_;
-  addProjections(state.position, rhs_);
+  addProjections<false>(state.position, rhs_);
   // Global step: the prefactored matrix, three right-hand sides.
   solvePrefactored(rhs_, free_next_);
 }
@@ -430,7 +431,7 @@ void LocalGlobalSolver::gatherFree(const Eigen::Matrix3Xd& position, Eigen::Matr
 double LocalGlobalSolver::energyAndGradient(const Eigen::Matrix3Xd& position, const Eigen::MatrixXd& free,
                                             Eigen::MatrixXd& gradient) {
   rhs_ = fixed_rhs_;
-  const double energy = addProjections(position, rhs_);
+  const double energy = addProjections<true>(position, rhs_);
   gradient.noalias() = stiffness_free_ * free;
   gradient -= rhs_;
   return energy;

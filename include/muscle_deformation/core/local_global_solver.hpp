@@ -136,7 +136,9 @@ class LocalGlobalSolver {
   void localGlobalIteration(const ParticleState& state);  // fills free_next_ from free_current_
   // Local step at `position`: adds each term's projection force to `rhs` (free particles x 3); returns the energy
   // sum of 1/2 w |current - projection|^2 over the terms (springs and volume). Its gradient with respect to the free
-  // particles is stiffness_free_ x_free - fixed_rhs_ - (what this adds).
+  // particles is stiffness_free_ x_free - fixed_rhs_ - (what this adds). Without kWithEnergy (the plain iteration,
+  // which never reads it) the energy is not summed and 0 is returned.
+  template <bool kWithEnergy>
   double addProjections(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& rhs) const;
   // The quasi-Newton iteration loop of solve(); fixed_rhs_ must be set for the pose.
   void quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
