@@ -254,7 +254,7 @@ def speed_error_section(points, img_dir, img_link_prefix="img/"):
                 cells.append(_number(match[0]["rms_mm"]) if match else "-")
             lines.append(f"| {ppf} | " + " | ".join(cells) + " |")
         lines += [""]
-    lines += implicit_targets_section(points)
+    lines += implicit_targets_section(points, curves)
     lines += ["### Every configuration", "",
               "| configuration | start | poses | RMS mm at the last point (iterations, ms) | first point <= 5 / 2 / 1 mm "
               "(ms) | volume error % at the last point |", "|---|---|---|---|---|---|"]
@@ -271,9 +271,8 @@ def speed_error_section(points, img_dir, img_link_prefix="img/"):
     return lines + [""], choices
 
 
-def implicit_targets_section(points):
-    """The beyond-the-seeds issue's targets, judged on the thigh13 points of speed_vs_error.json."""
-    curves = convergence_curves(points)
+def implicit_targets_section(points, curves):
+    """The beyond-the-seeds issue's targets, judged on the thigh13 points of speed_vs_error.json and their curves."""
     lines = ["### The implicit solver's targets on thigh13 (beyond-the-seeds issue)", ""]
     cold = [(config, curve) for (config, start), curve in curves.items()
             if start == "cold" and curve and curve[0]["sample"]["solver"] == "local_global"]
