@@ -141,12 +141,16 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readEnum("service_solver", service.solver_kind, solverKindFromString);
   p.readInt("service_lbfgs_history", service.lbfgs_history, 0, 1000);
   p.readInt("service_max_iterations", service.max_iterations, 1, 1000000);
+  shareStoppingRule(simulation);
+  // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
+  // shares every local/global parameter but the L-BFGS history).
+  if (simulation.solver_kind == SolverKind::local_global)
+    if (const std::string problem = validate(simulation.local_global); !problem.empty()) p.fail("lbfgs_history", problem);
   LocalGlobalSettings service_local_global = simulation.local_global;
   service_local_global.lbfgs_history = service.lbfgs_history;
-  if (const std::string problem = validate(service_local_global); !problem.empty()) p.fail("service_lbfgs_history", problem);
-  shareStoppingRule(simulation);
-  const std::string local_global_problem = validate(simulation.local_global);
-  if (!local_global_problem.empty()) p.fail("solver", local_global_problem);
+  if (service.solver_kind == SolverKind::local_global)
+    if (const std::string problem = validate(service_local_global); !problem.empty())
+      p.fail("service_lbfgs_history", problem + " (chebyshev_rho and volume_weight apply to the service too)");
 
   p.read("collisions", simulation.collisions);
   p.readEnum("broad_phase", simulation.collision.broad_phase, broadPhaseFromString);
