@@ -5,8 +5,11 @@
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "muscle_deformation");
+  // Held outside the try: ROS shuts down, and stops logging, when its last NodeHandle goes, so a node that fails to
+  // construct must not take the handles with it before its error is logged.
+  ros::NodeHandle node_handle, private_node_handle("~");
   try {
-    muscle_deformation::node::MuscleDeformationNode node(ros::NodeHandle(), ros::NodeHandle("~"));
+    muscle_deformation::node::MuscleDeformationNode node(node_handle, private_node_handle);
     ros::MultiThreadedSpinner spinner(2);  // the service may solve while joint states keep arriving
     spinner.spin();
   } catch (const std::exception& e) {

@@ -1,0 +1,48 @@
+#!/usr/bin/env python3
+"""The node, started with a broken parameter, must exit non-zero and say which parameter and why (rostest gives
+the master; the node binary runs as a subprocess so its exit code and output can be checked)."""
+
+import subprocess
+import unittest
+
+import rosunit
+from catkin.find_in_workspaces import find_in_workspaces
+
+PACKAGE = "muscle_deformation"
+
+
+def node_binary():
+    """The node in the catkin workspace this test runs from (its devel space's lib dir)."""
+    found = find_in_workspaces(project=PACKAGE, path="muscle_deformation_node", first_match_only=True)
+    if not found:
+        raise RuntimeError("muscle_deformation_node not found in the catkin workspaces")
+    return found[0]
+
+
+class BadParameters(unittest.TestCase):
+    def run_node(self, *parameters):
+        name = "bad_parameters_node"
+        subprocess.run(["rosparam", "delete", "/" + name], capture_output=True)
+        result = subprocess.run([node_binary(), "__name:=" + name] + list(parameters), capture_output=True, text=True,
+                                timeout=60)
+        return result.returncode, result.stdout + result.stderr
+
+    def test_out_of_range_value_names_the_parameter_and_range(self):
+        code, output = self.run_node("_max_iterations:=-5")
+        self.assertNotEqual(code, 0)
+        self.assertIn("parameter /bad_parameters_node/max_iterations is -5, must be in [1, 1000000]", output)
+
+    def test_unknown_solver_names_the_accepted_ones(self):
+        code, output = self.run_node("_service_solver:=euler")
+        self.assertNotEqual(code, 0)
+        self.assertIn("service_solver", output)
+        self.assertIn("expected verlet or local_global", output)
+
+    def test_conflicting_solver_options_are_refused(self):
+        code, output = self.run_node("_solver:=local_global", "_lbfgs_history:=4", "_chebyshev_rho:=0.5")
+        self.assertNotEqual(code, 0)
+        self.assertIn("lbfgs_history and chebyshev_rho exclude each other", output)
+
+
+if __name__ == "__main__":
+    rosunit.unitrun(PACKAGE, "bad_parameters", BadParameters)
