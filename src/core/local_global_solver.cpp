@@ -505,6 +505,7 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       stats.mean_displacement_m = 0;
       stats.mss_ms += millisecondsSince(mss_start);
       stats.stopping_rule_met = settings_.stopping_rule != StoppingRule::time_budget;
+      stats.converged = true;  // a minimum (of what the hook allows)
       return;
     }
     free_previous_.swap(free_current_);
@@ -531,12 +532,25 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       break;
     }
     stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
-    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
+    const double elapsed_ms = millisecondsSince(solve_start);
+    if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
+      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
       break;
     }
+    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
   }
   stats.mss_ms += millisecondsSince(mss_start);
+}
+
+void LocalGlobalSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                                    double time_budget_ms, const SolveLimits& limits) {
+  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  settings_.stopping_rule = rule;
+  settings_.max_iterations = max_iterations;
+  settings_.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.time_budget_ms = time_budget_ms;
+  settings_.limits = limits;
 }
 
 SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
@@ -620,10 +634,13 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
       break;
     }
     stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
-    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
+    const double elapsed_ms = millisecondsSince(solve_start);
+    if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
+      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
       break;
     }
+    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
   }
   return finishSolve(state, stats, solve_start);
 }
@@ -639,7 +656,10 @@ SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stat
   }
   // The quasi-static result is an equilibrium: leave it at rest.
   if (settings_.quasi_static) state.previous_position = state.position;
-  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged) stats.stopping_rule_met = true;
+  if (stats.diverged) stats.converged = false;
+  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
+      !stats.cancelled)
+    stats.stopping_rule_met = true;
   stats.last_dt_s = stats.min_dt_s = stats.max_dt_s = settings_.quasi_static ? 0.0 : settings_.time_step_s;
   stats.time_step_s = stats.last_dt_s;
   stats.total_ms = millisecondsSince(solve_start);

@@ -256,6 +256,30 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     }
   }
   scene.bones = bonesAtRest(skeleton, resolve_mesh, scene.rest_link_poses);
+  // Bones are the links with <collision> meshes: without one, a muscle's attachments follow nothing and the muscles
+  // never move, which must not pass for a working scene.
+  if (scene.bones.empty()) {
+    throw SceneError(description.path + ": the URDF has no link with a <collision> mesh, so there are no bones to "
+                     "attach the muscles to (bones are the links' collision meshes)");
+  }
+  std::set<std::string> bone_names, meshless;
+  for (const Bone& bone : scene.bones) bone_names.insert(bone.name);
+  std::string named_meshless;
+  for (const MuscleDescription& m : scene.muscle_descriptions) {
+    for (const std::string* bone : {&m.origin_bone, &m.insertion_bone}) {
+      if (!bone_names.count(*bone)) {
+        named_meshless += std::string(named_meshless.empty() ? "" : ", ") + "muscle '" + m.name + "' names '" + *bone + "'";
+        meshless.insert(*bone);
+      }
+    }
+  }
+  if (!meshless.empty()) {
+    std::string links;
+    for (const std::string& name : meshless) links += (links.empty() ? "'" : ", '") + name + "'";
+    throw SceneError(description.path + ": link" + (meshless.size() > 1 ? "s " : " ") + links +
+                     " of the URDF ha" + (meshless.size() > 1 ? "ve" : "s") + " no <collision> mesh, so " +
+                     (meshless.size() > 1 ? "they are" : "it is") + " no bone (" + named_meshless + ")");
+  }
   for (const MuscleDescription& m : scene.muscle_descriptions) {
     Muscle muscle;
     muscle.name = m.name;

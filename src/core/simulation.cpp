@@ -30,6 +30,18 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
 
 void MuscleSimulation::reset() { has_previous_ = false; }
 
+void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                                   double time_budget_ms, const SolveLimits& limits) {
+  if (solver_) solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
+  if (local_global_solver_)
+    local_global_solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
+  for (auto* settings : {&settings_.solver.stopping_rule, &settings_.local_global.stopping_rule}) *settings = rule;
+  settings_.solver.max_iterations = settings_.local_global.max_iterations = max_iterations;
+  settings_.solver.displacement_tolerance_m = settings_.local_global.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.solver.time_budget_ms = settings_.local_global.time_budget_ms = time_budget_ms;
+  settings_.solver.limits = settings_.local_global.limits = limits;
+}
+
 FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
   const BoneTransforms transforms = boneTransformsOf(bones_, pose);
   for (const Eigen::Isometry3d& transform : transforms)

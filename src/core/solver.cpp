@@ -1,8 +1,11 @@
 #include "muscle_deformation/core/solver.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 
@@ -15,22 +18,72 @@ double millisecondsSince(Clock::time_point start) {
 }
 }  // namespace
 
+namespace {
+
+// Strain histogram for a percentile in one pass without sorting: the bin of a positive double is its exponent and its
+// four leading mantissa bits (bits 48-63 of its IEEE 754 pattern, monotone in the value), so every octave is cut into
+// 16 bins. Strains from 2^-40 to 2^40 have bins of their own; smaller ones share the first, larger ones the last.
+class StrainHistogram {
+ public:
+  void add(double strain) {
+    std::size_t bin = 0;
+    if (strain > 0) {
+      const std::uint64_t key = bitsOf(strain) >> 48;
+      bin = key <= kFirstKey ? 0 : std::min<std::uint64_t>(key - kFirstKey, kBins - 1);
+    }
+    ++counts_[bin];
+    ++total_;
+  }
+  // Upper edge of the bin holding the given quantile (clamped to the largest value seen by the caller).
+  double quantileUpperBound(double quantile) const {
+    const auto wanted = static_cast<std::uint64_t>(std::ceil(quantile * static_cast<double>(total_)));
+    std::uint64_t seen = 0;
+    for (std::size_t bin = 0; bin < kBins; ++bin) {
+      seen += counts_[bin];
+      if (seen >= wanted && seen > 0) return valueOf((kFirstKey + bin + 1) << 48);
+    }
+    return std::numeric_limits<double>::infinity();
+  }
+
+ private:
+  static std::uint64_t bitsOf(double value) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &value, sizeof bits);
+    return bits;
+  }
+  static double valueOf(std::uint64_t bits) {
+    double value;
+    std::memcpy(&value, &bits, sizeof value);
+    return value;
+  }
+  static constexpr std::size_t kBins = 80 * 16;
+  static inline const std::uint64_t kFirstKey = bitsOf(std::ldexp(1.0, -40)) >> 48;
+  std::array<std::uint32_t, kBins> counts_{};
+  std::uint64_t total_ = 0;
+};
+
+}  // namespace
+
 SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position) {
   SpringMetrics metrics;
   if (springs.size() == 0) return metrics;
   double deviation = 0, rest_sum = 0, strain_sum = 0;
+  StrainHistogram histogram;
   for (std::size_t s = 0; s < springs.size(); ++s) {
     const auto e = static_cast<Eigen::Index>(s);
     const double rest = springs.rest_length[e];
     const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
     const double change = std::abs(length - rest);
+    const double strain = change / rest;
     deviation += change;
     rest_sum += rest;
-    strain_sum += change / rest;
-    metrics.max_strain = std::max(metrics.max_strain, change / rest);
+    strain_sum += strain;
+    metrics.max_strain = std::max(metrics.max_strain, strain);
+    histogram.add(strain);
   }
   metrics.deviation_ratio = deviation / rest_sum;
   metrics.mean_strain = strain_sum / static_cast<double>(springs.size());
+  metrics.strain_p99 = std::min(histogram.quantileUpperBound(0.99), metrics.max_strain);
   return metrics;
 }
 
@@ -39,6 +92,7 @@ void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& posit
   stats.spring_deviation_ratio = metrics.deviation_ratio;
   stats.mean_strain = metrics.mean_strain;
   stats.max_strain = metrics.max_strain;
+  stats.strain_p99 = metrics.strain_p99;
 }
 
 double criticalDamping(const MassSpringSystem& system) {
@@ -259,13 +313,26 @@ bool VerletSolver::attempt(ParticleState& state, const AfterUpdateHook& after_up
     stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
 
     if (divergence.diverged(stats.mean_displacement_m, moved.step_correlation)) return false;
-    if (stopping.met(iteration, stats.mean_displacement_m, millisecondsSince(solve_start))) {
+    const double elapsed_ms = millisecondsSince(solve_start);
+    if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
+      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
       break;
     }
+    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
   }
   // The collision hook of the last iteration runs after the last integration, so check what it left too.
   return state.position.allFinite();
+}
+
+void VerletSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                               double time_budget_ms, const SolveLimits& limits) {
+  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  settings_.stopping_rule = rule;
+  settings_.max_iterations = max_iterations;
+  settings_.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.time_budget_ms = time_budget_ms;
+  settings_.limits = limits;
 }
 
 SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
@@ -286,6 +353,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
     state.previous_position = entry_previous_position_;
     // The diverged attempt's steps (possibly infinite) describe nothing that is left in the state.
     stats.stopping_rule_met = false;
+    stats.converged = false;
     stats.mean_displacement_m = 0;
     stats.peak_mean_displacement_m = 0;
     if (stats.divergence_recoveries == kMaxRecoveries) {
@@ -297,7 +365,9 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
     dt_ /= 2.0;
     dt_min_ /= 2.0;
   }
-  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged) stats.stopping_rule_met = true;
+  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
+      !stats.cancelled)
+    stats.stopping_rule_met = true;
   if (stats.iterations == 0) stats.min_dt_s = 0;
   stats.time_step_s = dt_;
   stats.total_ms = millisecondsSince(solve_start);

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <regex>
 #include <string>
 #include <vector>
 
@@ -337,4 +338,42 @@ TEST(Scene, PoseFromLinkPosesMovesBonesRelativeToRest) {
   const Eigen::Vector3d hip = scene.rest_link_poses.at("femur_r").translation();
   EXPECT_TRUE((pose.transformOf("femur_r") * hip).isApprox(hip, 1e-12));
   EXPECT_NEAR(Eigen::AngleAxisd(pose.transformOf("femur_r").linear()).angle(), 0.5, 1e-12);
+}
+
+namespace {
+
+// The bundled URDF with the <collision> elements of `link` (every link if empty) removed.
+std::string bundledUrdfWithoutCollisions(const std::string& link = "") {
+  std::ifstream file(kBundledUrdf);
+  std::string xml((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  const std::regex collision("<collision[\\s\\S]*?</collision>");
+  if (link.empty()) return std::regex_replace(xml, collision, "");
+  const std::size_t begin = xml.find("<link name=\"" + link + "\"");
+  const std::size_t end = xml.find("</link>", begin);
+  return xml.substr(0, begin) + std::regex_replace(xml.substr(begin, end - begin), collision, "") + xml.substr(end);
+}
+
+}  // namespace
+
+TEST(Scene, AUrdfWithoutCollisionMeshesIsRefusedForHavingNoBones) {
+  const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(bundledUrdfWithoutCollisions(), "robot_description");
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] {
+                    md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name});
+                  }),
+                  "no link with a <collision> mesh");
+}
+
+TEST(Scene, AMuscleOnALinkWithoutCollisionMeshIsRefusedNamingBoth) {
+  const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(bundledUrdfWithoutCollisions("pelvis"), "robot_description");
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  const md::MuscleDescription& muscle = description.muscles[0];
+  ASSERT_EQ(muscle.origin_bone, "pelvis");
+  const std::string message = md::testing::errorMessageOf<md::SceneError>(
+      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+  EXPECT_CONTAINS(message, "'pelvis'");
+  EXPECT_CONTAINS(message, "no <collision> mesh");
+  EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
 }

@@ -76,6 +76,7 @@ struct LocalGlobalSettings {
   int max_iterations = 100;                // cap for every rule
   double displacement_tolerance_m = 1e-6;  // mean free-particle displacement of an iteration
   double time_budget_ms = 16.0;
+  SolveLimits limits;                      // for every rule
 };
 
 // Checks settings; returns an empty string when valid, otherwise what is wrong.
@@ -107,6 +108,10 @@ class LocalGlobalSolver {
   // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
   // stats say `diverged`.
   SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {});
+
+  // Changes how later solves stop (rule, iteration cap, tolerances, limits); the factorisation is kept.
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits);
 
   const LocalGlobalSettings& settings() const { return settings_; }
   int factorisations() const { return factorisations_; }

@@ -48,6 +48,9 @@ class MuscleSimulation {
 
   FrameStats solve(const Pose& pose, StartMode start);
   void reset();  // forget the previous result: the next solve starts cold
+  // Changes how later solves stop, for whichever solver runs (no rebuild): rule, iteration cap, tolerances, limits.
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits);
 
   const MassSpringSystem& system() const { return system_; }
   const ParticleState& state() const { return state_; }

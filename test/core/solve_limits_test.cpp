@@ -1,0 +1,169 @@
+// Limits every solve obeys whatever its stopping rule (wall-time ceiling, cancellation), the meaning of `converged`,
+// and the robust strain percentile.
+#include "muscle_deformation/core/local_global_solver.hpp"
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/solver.hpp"
+
+#include "test_helpers.hpp"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <limits>
+
+using namespace muscle_deformation;
+using muscle_deformation::testing::stateAt;
+
+namespace {
+
+// A straight chain of `links` unit springs along x, both ends fixed, the right end pulled to 1.5 x its length.
+MassSpringSystem pulledChain(int links, ParticleState& state) {
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, links + 1);
+  ParticlePairs springs;
+  for (int i = 0; i <= links; ++i) positions(0, i) = i;
+  for (int i = 0; i < links; ++i) springs.emplace_back(i, i + 1);
+  MassSpringSystem system = systemFromParticles(positions, springs, 1.0, 1.0);
+  system.is_fixed[0] = 1;
+  system.is_fixed[links] = 1;
+  state = stateAt(system.rest_position);
+  state.position(0, links) = 1.5 * links;
+  state.previous_position = state.position;
+  return system;
+}
+
+double secondsOf(const std::function<void()>& run) {
+  const auto start = std::chrono::steady_clock::now();
+  run();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
+
+TEST(SolveLimits, WallTimeLimitEndsAVerletSolveUnderTheIterationsRule) {
+  ParticleState state;
+  const MassSpringSystem system = pulledChain(50, state);
+  SolverSettings settings;
+  settings.stopping_rule = StoppingRule::iterations;
+  settings.max_iterations = std::numeric_limits<int>::max();  // unbounded but for the limit
+  settings.limits.wall_time_limit_ms = 50;
+  VerletSolver solver(system, settings);
+  SolveStats stats;
+  const double seconds = secondsOf([&] { stats = solver.solve(state); });
+  EXPECT_TRUE(stats.time_limit_reached);
+  EXPECT_FALSE(stats.stopping_rule_met) << "the iteration count was not reached";
+  EXPECT_FALSE(stats.converged);
+  EXPECT_GT(stats.iterations, 0);
+  EXPECT_LT(seconds, 2.0) << "the 50 ms limit bounds the solve (2 s allows for a loaded machine)";
+  EXPECT_TRUE(state.position.allFinite());
+}
+
+TEST(SolveLimits, WallTimeLimitEndsALocalGlobalSolveUnderTheIterationsRule) {
+  for (const int history : {0, 8}) {
+    ParticleState state;
+    const MassSpringSystem system = pulledChain(50, state);
+    LocalGlobalSettings settings;
+    settings.lbfgs_history = history;
+    settings.stopping_rule = StoppingRule::iterations;
+    settings.max_iterations = std::numeric_limits<int>::max();
+    settings.limits.wall_time_limit_ms = 50;
+    // A contact hook that keeps moving one particle, so L-BFGS never runs out of descent before the limit.
+    int calls = 0;
+    const AfterUpdateHook jiggle = [&](ParticleState& s) {
+      s.position(1, 10) = (++calls % 2) ? 1e-3 : -1e-3;
+      return 1;
+    };
+    LocalGlobalSolver solver(system, settings);
+    SolveStats stats;
+    const double seconds = secondsOf([&] { stats = solver.solve(state, jiggle); });
+    EXPECT_TRUE(stats.time_limit_reached) << "history " << history;
+    EXPECT_FALSE(stats.stopping_rule_met) << "history " << history;
+    EXPECT_LT(seconds, 2.0) << "history " << history;
+  }
+}
+
+TEST(SolveLimits, RaisedCancelFlagStopsTheSolveAfterOneIteration) {
+  ParticleState state;
+  const MassSpringSystem system = pulledChain(20, state);
+  std::atomic<bool> cancel{true};
+  SolverSettings settings;
+  settings.max_iterations = 1000000;
+  settings.limits.cancel = &cancel;
+  VerletSolver solver(system, settings);
+  const SolveStats stats = solver.solve(state);
+  EXPECT_TRUE(stats.cancelled);
+  EXPECT_EQ(stats.iterations, 1);
+  EXPECT_FALSE(stats.converged);
+}
+
+TEST(SolveLimits, SetStoppingChangesLaterSolvesWithoutRebuilding) {
+  ParticleState state;
+  const MassSpringSystem system = pulledChain(20, state);
+  VerletSolver solver(system, SolverSettings());
+  solver.setStopping(StoppingRule::iterations, 7, 1e-6, 16, SolveLimits());
+  EXPECT_EQ(solver.solve(state).iterations, 7);
+  EXPECT_THROW(solver.setStopping(StoppingRule::iterations, -1, 1e-6, 16, SolveLimits()), std::invalid_argument);
+}
+
+TEST(Converged, OnlyWhenTheDisplacementToleranceIsMet) {
+  ParticleState state;
+  const MassSpringSystem system = pulledChain(8, state);
+  const ParticleState start = state;
+  SolverSettings settings;
+  settings.max_iterations = 50;  // far from settled
+  VerletSolver by_count(system, settings);
+  const SolveStats counted = by_count.solve(state);
+  EXPECT_TRUE(counted.stopping_rule_met) << "the iterations rule ran its count";
+  EXPECT_FALSE(counted.converged) << "running out of iterations is not convergence";
+
+  state = start;
+  settings.stopping_rule = StoppingRule::displacement;
+  settings.displacement_tolerance_m = 1e-10;
+  settings.max_iterations = 200000;
+  VerletSolver by_tolerance(system, settings);
+  const SolveStats settled = by_tolerance.solve(state);
+  EXPECT_TRUE(settled.converged);
+
+  state = start;
+  settings.max_iterations = 10;  // the tolerance cannot be met in 10 iterations
+  VerletSolver capped(system, settings);
+  const SolveStats unsettled = capped.solve(state);
+  EXPECT_FALSE(unsettled.stopping_rule_met);
+  EXPECT_FALSE(unsettled.converged);
+}
+
+TEST(StrainPercentile, IgnoresAFewExtremeSpringsWhereTheMaximumCannot) {
+  // 1000 springs stretched by 10 % and 5 micro-springs stretched 10^4 times their length: the 99th percentile is the
+  // ordinary 10 %, the maximum the outlier.
+  const int ordinary = 1000, extreme = 5;
+  Eigen::Matrix3Xd rest = Eigen::Matrix3Xd::Zero(3, 2 * (ordinary + extreme));
+  ParticlePairs pairs;
+  for (int s = 0; s < ordinary + extreme; ++s) {
+    const double length = s < ordinary ? 1.0 : 1e-6;
+    rest.col(2 * s) = Eigen::Vector3d(0, 0, 10.0 * s);
+    rest.col(2 * s + 1) = Eigen::Vector3d(length, 0, 10.0 * s);
+    pairs.emplace_back(2 * s, 2 * s + 1);
+  }
+  const MassSpringSystem system = systemFromParticles(rest, pairs, 1.0, 1.0);
+  Eigen::Matrix3Xd deformed = rest;
+  for (int s = 0; s < ordinary + extreme; ++s) {
+    const double rest_length = s < ordinary ? 1.0 : 1e-6;
+    deformed(0, 2 * s + 1) = s < ordinary ? 1.1 * rest_length : 1e4 * rest_length;
+  }
+  const SpringMetrics metrics = measureSprings(system.springs, deformed);
+  EXPECT_NEAR(metrics.max_strain, 1e4 - 1, 1e-3);
+  EXPECT_GE(metrics.strain_p99, 0.1 * (1 - 1e-9)) << "an upper bound";
+  EXPECT_LE(metrics.strain_p99, 0.1 * 1.0625) << "at most one bin (1/16 octave) above";
+}
+
+TEST(StrainPercentile, EqualsTheStrainOfAUniformlyStretchedSet) {
+  Eigen::Matrix3Xd rest(3, 2);
+  rest << 0, 1, 0, 0, 0, 0;
+  const MassSpringSystem system = systemFromParticles(rest, {{0, 1}}, 1.0, 1.0);
+  Eigen::Matrix3Xd deformed = rest;
+  deformed(0, 1) = 1.5;
+  const SpringMetrics metrics = measureSprings(system.springs, deformed);
+  EXPECT_NEAR(metrics.strain_p99, 0.5, 1e-12) << "clamped to the largest strain";
+  deformed(0, 1) = 1.0;
+  EXPECT_EQ(measureSprings(system.springs, deformed).strain_p99, 0.0);
+}
