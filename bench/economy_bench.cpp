@@ -41,35 +41,31 @@ struct FrameRecord {
   FrameStats stats;
 };
 
-// Plays poses through a simulation the way the node does: warm from the previous frame unless a bone jumped
-// further than the node's reset thresholds (then cold).
+// Plays poses through a simulation the way the node's stream starts them (PoseStream): warm from the previous frame
+// unless time went back or a bone moved faster than the node's limits (then cold). The poses come at the gait's 60 Hz.
+// Unlike the node, an unchanged pose is solved too: the benchmark times solves.
 class GaitPlayer {
  public:
+  static constexpr double kGaitRateHz = 60.0;
   GaitPlayer(MuscleSimulation& simulation, const bench::NodeDefaults& defaults)
-      : simulation_(simulation), defaults_(defaults), centroids_(boneRestCentroids(simulation.bones())) {}
+      : simulation_(simulation), stream_(boneRestCentroids(simulation.bones()), defaults.stream) {}
 
   FrameRecord solve(const Pose& pose) {
     const BoneTransforms transforms = boneTransformsOf(simulation_.bones(), pose);
-    StartMode start = defaults_.warm_start ? StartMode::warm : StartMode::cold;
-    if (has_previous_) {
-      const BoneMotion motion = largestBoneMotion(previous_, transforms, centroids_);
-      if (motion.translation_m > defaults_.reset_translation_m || motion.rotation_rad > defaults_.reset_rotation_rad)
-        start = StartMode::cold;
-    }
+    const double time_s = static_cast<double>(frames_++) / kGaitRateHz;
+    const StartMode start =
+        stream_.decide(time_s, transforms).start == StreamStart::cold ? StartMode::cold : StartMode::warm;
     FrameRecord record;
     record.cpu_ms = bench::cpuMillisecondsOf(
         [&] { record.wall_ms = bench::millisecondsOf([&] { record.stats = simulation_.solve(pose, start); }); });
-    previous_ = transforms;
-    has_previous_ = true;
+    stream_.accept(time_s, transforms);
     return record;
   }
 
  private:
   MuscleSimulation& simulation_;
-  const bench::NodeDefaults& defaults_;
-  std::vector<Eigen::Vector3d> centroids_;
-  BoneTransforms previous_;
-  bool has_previous_ = false;
+  PoseStream stream_;
+  std::size_t frames_ = 0;
 };
 
 // Plays the poses through several simulations frame by frame in turn (so slow spells of a shared machine hit all of
@@ -352,8 +348,8 @@ int main(int argc, char** argv) {
         for (const std::size_t f : stream.frames) {
           if (previous_solved) {
             const BoneMotion motion = largestBoneMotion(*previous_solved, recorded[f], centroids);
-            if (motion.translation_m <= defaults.unchanged_translation_m &&
-                motion.rotation_rad <= defaults.unchanged_rotation_rad) {
+            if (motion.translation_m <= defaults.stream.unchanged_translation_m &&
+                motion.rotation_rad <= defaults.stream.unchanged_rotation_rad) {
               ++skipped;
               continue;
             }
@@ -373,8 +369,8 @@ int main(int argc, char** argv) {
         records.add("messages", messages);
         records.add("solved", solved);
         records.add("skipped", static_cast<double>(skipped));
-        records.add("unchanged_translation_m", defaults.unchanged_translation_m);
-        records.add("unchanged_rotation_rad", defaults.unchanged_rotation_rad);
+        records.add("unchanged_translation_m", defaults.stream.unchanged_translation_m);
+        records.add("unchanged_rotation_rad", defaults.stream.unchanged_rotation_rad);
         records.end();
         std::printf("unchanged_pose %-26s %-7s %4.0f messages, %4zu skipped: %.1f ms per message with the check, "
                     "%.1f without\n",

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "muscle_deformation/core/collision.hpp"
+#include "muscle_deformation/core/pose_stream.hpp"
 #include "muscle_deformation/core/simulation.hpp"
 #include "muscle_deformation/core/spring_layout.hpp"
 
@@ -20,9 +21,7 @@ namespace bench {
 
 struct NodeDefaults {
   muscle_deformation::SimulationSettings simulation;
-  bool warm_start = true;
-  double unchanged_translation_m = 0, unchanged_rotation_rad = 0;  // a pose no bone moved more than this is skipped
-  double reset_translation_m = 0, reset_rotation_rad = 0;          // a bone jumping further forces a cold start
+  muscle_deformation::PoseStreamSettings stream;  // warm / cold / unchanged policy of the node's stream
 };
 
 inline NodeDefaults loadNodeDefaults() {
@@ -57,11 +56,11 @@ inline NodeDefaults loadNodeDefaults() {
   s.collisions = yaml["collisions"].as<bool>();
   require_same("broad_phase", md::toString(s.collision.broad_phase));
   s.collision.bone_reach_margin_m = yaml["bone_reach_margin_m"].as<double>();
-  defaults.warm_start = yaml["warm_start"].as<bool>();
-  defaults.unchanged_translation_m = yaml["unchanged_translation_m"].as<double>();
-  defaults.unchanged_rotation_rad = yaml["unchanged_rotation_rad"].as<double>();
-  defaults.reset_translation_m = yaml["reset_translation_m"].as<double>();
-  defaults.reset_rotation_rad = yaml["reset_rotation_rad"].as<double>();
+  defaults.stream.warm_start = yaml["warm_start"].as<bool>();
+  defaults.stream.unchanged_translation_m = yaml["unchanged_translation_m"].as<double>();
+  defaults.stream.unchanged_rotation_rad = yaml["unchanged_rotation_rad"].as<double>();
+  defaults.stream.max_bone_speed_m_per_s = yaml["max_bone_speed_m_per_s"].as<double>();
+  defaults.stream.max_bone_angular_speed_rad_per_s = yaml["max_bone_angular_speed_rad_per_s"].as<double>();
   return defaults;
 }
 

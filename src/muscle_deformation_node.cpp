@@ -10,8 +10,7 @@ int main(int argc, char** argv) {
   ros::NodeHandle node_handle, private_node_handle("~");
   try {
     muscle_deformation::node::MuscleDeformationNode node(node_handle, private_node_handle);
-    ros::MultiThreadedSpinner spinner(2);  // the service may solve while joint states keep arriving
-    spinner.spin();
+    ros::spin();  // joint states and diagnostics; the service has a spinner of its own
   } catch (const std::exception& e) {
     ROS_FATAL_STREAM("muscle_deformation: " << e.what());
     return 1;

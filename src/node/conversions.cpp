@@ -89,7 +89,19 @@ JointValues jointValuesFromMessage(const sensor_msgs::JointState& joint_state) {
   return values;
 }
 
-Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what) {
+Eigen::Isometry3d rigidTransformFromMessage(const geometry_msgs::Transform& transform, double& quaternion_length) {
+  const Eigen::Quaterniond rotation(transform.rotation.w, transform.rotation.x, transform.rotation.y,
+                                    transform.rotation.z);
+  quaternion_length = rotation.norm();
+  Eigen::Isometry3d result = Eigen::Isometry3d::Identity();
+  // A zero quaternion gives NaN here, which the solve refuses with a message (no rotation can be guessed).
+  result.linear() = Eigen::Quaterniond(rotation.coeffs() / quaternion_length).toRotationMatrix();
+  result.translation() = Eigen::Vector3d(transform.translation.x, transform.translation.y, transform.translation.z);
+  return result;
+}
+
+Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what,
+                                      double* quaternion_length) {
   const Eigen::Vector3d translation(transform.translation.x, transform.translation.y, transform.translation.z);
   const Eigen::Quaterniond rotation(transform.rotation.w, transform.rotation.x, transform.rotation.y,
                                     transform.rotation.z);
@@ -100,9 +112,9 @@ Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform,
     throw std::invalid_argument(what + " has a rotation quaternion of length " + std::to_string(norm) +
                                 " (expected a unit quaternion)");
   }
-  Eigen::Isometry3d result = Eigen::Isometry3d::Identity();
-  result.linear() = rotation.normalized().toRotationMatrix();
-  result.translation() = translation;
+  double length = 1;
+  const Eigen::Isometry3d result = rigidTransformFromMessage(transform, length);
+  if (quaternion_length) *quaternion_length = length;
   return result;
 }
 
@@ -225,13 +237,13 @@ visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinnin
   return array;
 }
 
-muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const SolverSettings& solver,
-                                                    const std_msgs::Header& header) {
+muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const std_msgs::Header& header) {
   muscle_deformation::DeformationStats stats;
   stats.header = header;
   const SolveStats& solve = frame.solve.solve;
   stats.iterations = solve.iterations;
-  stats.converged = solver.stopping_rule == StoppingRule::iterations || solve.stopping_rule_met;
+  stats.converged = solve.converged;
+  stats.time_limit_reached = solve.time_limit_reached;
   stats.warm_started = frame.solve.warm_started;
   stats.finite = frame.solve.finite;
   stats.divergence_recoveries = static_cast<std::uint32_t>(solve.divergence_recoveries);
@@ -246,6 +258,7 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   stats.spring_deviation_ratio = solve.spring_deviation_ratio;
   stats.mean_strain = solve.mean_strain;
   stats.max_strain = solve.max_strain;
+  stats.strain_p99 = solve.strain_p99;
   const CollisionStats& collision = frame.solve.collision;
   stats.contacts = collision.contacts;
   stats.max_penetration_sphere_bone_m = collision.max_penetration_muscle_bone_m;

@@ -60,6 +60,12 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   } catch (const std::invalid_argument& e) {
     throw std::runtime_error(e.what());
   }
+  // Every solve ends at the node-wide ceiling, and within an iteration once shutdown begins.
+  SolveLimits limits;
+  limits.wall_time_limit_ms = 1000.0 * settings_.max_solve_time_s;
+  limits.cancel = &shutting_down_;
+  settings_.pipeline.simulation.solver.limits = limits;
+  shareStoppingRule(settings_.pipeline.simulation);
   std::string urdf;
   if (!node_.getParam("robot_description", urdf) || urdf.empty()) {
     throw std::runtime_error("parameter " + node_.resolveName("robot_description") +
@@ -77,6 +83,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
                              "): " + e.what());
   }
   bone_centres_ = boneRestCentroids(stream_->simulation().bones());
+  stream_policy_ = std::make_unique<PoseStream>(bone_centres_, settings_.stream.policy);
   const double startup_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
@@ -93,15 +100,25 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   surfaces_pub_ = private_node_.advertise<muscle_deformation::MuscleSurfaces>("surfaces", 1);
   surface_markers_pub_ = private_node_.advertise<visualization_msgs::MarkerArray>("surface_markers", 1);
   stats_pub_ = private_node_.advertise<muscle_deformation::DeformationStats>("stats", 10);
-  deform_pose_srv_ = private_node_.advertiseService("deform_pose", &MuscleDeformationNode::onDeformPose, this);
+  ros::AdvertiseServiceOptions service_options;
+  service_options.initBySpecType<ServiceEvent>(
+      private_node_.resolveName("deform_pose"), [this](ServiceEvent& event) { return onDeformPose(event); });
+  service_options.callback_queue = &service_queue_;
+  deform_pose_srv_ = private_node_.advertiseService(service_options);
+  // One thread more than the calls that may be in the service (one solving, max_queued waiting), so that the next
+  // caller is answered "busy" at once instead of waiting unseen in the queue.
+  service_spinner_ = std::make_unique<ros::AsyncSpinner>(settings_.service.max_queued + 2, &service_queue_);
+  service_spinner_->start();
 
   diagnostics_.setHardwareID("none");
   diagnostics_.add("Output rate", this, &MuscleDeformationNode::diagnoseOutputRate);
   diagnostics_.add("Solve time", this, &MuscleDeformationNode::diagnoseSolveTime);
-  diagnostics_.add("Poses (tf failures, dropped)", this, &MuscleDeformationNode::diagnosePoses);
+  diagnostics_.add("Poses (tf failures, bad joint states, dropped)", this, &MuscleDeformationNode::diagnosePoses);
   window_start_ = ros::WallTime::now();
+  // force_update, not update: update() waits until ros::Time::now() passes its next due time, which a clock that jumps
+  // back (a looping bag under sim time) pushes out of reach for good. This wall timer sets the rate instead.
   diagnostics_timer_ = node_.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) {
-    diagnostics_.update();
+    diagnostics_.force_update();
   });
 
   worker_ = std::thread(&MuscleDeformationNode::workerLoop, this);
@@ -109,6 +126,8 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
 }
 
 MuscleDeformationNode::~MuscleDeformationNode() {
+  shutting_down_ = true;  // running solves end after their current iteration
+  if (service_spinner_) service_spinner_->stop();
   {
     std::lock_guard<std::mutex> lock(pending_mutex_);
     stopping_ = true;
@@ -122,6 +141,21 @@ MuscleDeformationNode::~MuscleDeformationNode() {
 
 void MuscleDeformationNode::onJointStates(const sensor_msgs::JointState::ConstPtr& message) {
   const ros::Time stamp = message->header.stamp.isZero() ? ros::Time::now() : message->header.stamp;
+  // A NaN joint position gives no transforms (tf2 rejects them): say so here rather than as a missing transform.
+  for (std::size_t j = 0; j < message->position.size(); ++j) {
+    if (std::isfinite(message->position[j])) continue;
+    const std::string joint = j < message->name.size() ? message->name[j] : "#" + std::to_string(j);
+    std::lock_guard<std::mutex> lock(counters_mutex_);
+    ++counters_.received;
+    ++window_received_;
+    ++counters_.non_finite_joint_states;
+    ++window_non_finite_joint_states_;
+    last_joint_state_error_ = "joint '" + joint + "' is " + std::to_string(message->position[j]);
+    ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: joint state at " << stamp << " skipped: "
+                                                                        << last_joint_state_error_);
+    return;
+  }
+  warnAboutJointLimits(*message);
   bool replaced = false;
   {
     std::lock_guard<std::mutex> lock(pending_mutex_);
@@ -132,10 +166,26 @@ void MuscleDeformationNode::onJointStates(const sensor_msgs::JointState::ConstPt
   std::lock_guard<std::mutex> lock(counters_mutex_);
   ++counters_.received;
   ++window_received_;
-  if (replaced) {
+  if (replaced) {  // the worker was still busy with an earlier pose: the solver is slower than the input
     ++counters_.dropped;
     ++window_dropped_;
   }
+}
+
+void MuscleDeformationNode::warnAboutJointLimits(const sensor_msgs::JointState& message) {
+  JointValues values;
+  for (std::size_t j = 0; j < message.name.size() && j < message.position.size(); ++j)
+    if (scene_.skeleton.joint(message.name[j])) values[message.name[j]] = message.position[j];
+  std::vector<std::string> warnings;
+  try {
+    scene_.skeleton.linkPoses(values, &warnings);
+  } catch (const std::exception&) {
+    return;  // nothing to say about limits; the pose itself comes through tf
+  }
+  if (warnings.empty()) return;
+  std::string text;
+  for (const std::string& warning : warnings) text += (text.empty() ? "" : "; ") + warning;
+  ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: joint state at " << message.header.stamp << ": " << text);
 }
 
 void MuscleDeformationNode::workerLoop() {
@@ -151,16 +201,7 @@ void MuscleDeformationNode::workerLoop() {
     LinkPoses link_poses;
     std::string error;
     if (!lookupBones(stamp, link_poses, error)) {
-      std::lock_guard<std::mutex> lock(counters_mutex_);
-      if (error.empty()) {  // superseded by a newer pose while waiting for its transforms
-        ++counters_.dropped;
-        ++window_dropped_;
-      } else {
-        ++counters_.tf_failures;
-        ++window_tf_failures_;
-        last_tf_error_ = error;
-        ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: pose at " << stamp << " skipped: " << error);
-      }
+      countUnsolvedPose(stamp, error);
       continue;
     }
     try {
@@ -168,8 +209,31 @@ void MuscleDeformationNode::workerLoop() {
     } catch (const std::exception& e) {
       ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: solve of the pose at " << stamp << " failed: " << e.what());
       stream_->reset();
-      has_previous_ = false;
+      stream_policy_->reset();
     }
+  }
+}
+
+void MuscleDeformationNode::countUnsolvedPose(const ros::Time& stamp, const std::string& error) {
+  {
+    std::lock_guard<std::mutex> lock(pending_mutex_);
+    if (stopping_) return;
+  }
+  // A stamp ahead of the clock has no transforms yet and may never get them in time: a clock or stamping problem of
+  // the publisher, not of tf.
+  const bool future = stamp > ros::Time::now();
+  std::lock_guard<std::mutex> lock(counters_mutex_);
+  if (future) {
+    ++counters_.future_stamps;
+    ++window_future_stamps_;
+    ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: pose at " << stamp << " skipped: its stamp is "
+                                                                 << (stamp - ros::Time::now()).toSec()
+                                                                 << " s ahead of the clock (" << error << ")");
+  } else {
+    ++counters_.tf_failures;
+    ++window_tf_failures_;
+    last_tf_error_ = error;
+    ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: pose at " << stamp << " skipped: " << error);
   }
 }
 
@@ -187,8 +251,14 @@ bool MuscleDeformationNode::lookupBones(const ros::Time& stamp, LinkPoses& out, 
         break;
       }
       try {
-        out.poses[bones[next].name] =
-            tf2::transformToEigen(tf_buffer_.lookupTransform(settings_.fixed_frame, bones[next].name, stamp));
+        double quaternion_length = 1;
+        out.poses[bones[next].name] = rigidTransformFromMessage(
+            tf_buffer_.lookupTransform(settings_.fixed_frame, bones[next].name, stamp).transform, quaternion_length);
+        if (std::abs(quaternion_length - 1.0) > kUnitQuaternionTolerance) {
+          ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: the transform of '"
+                                            << bones[next].name << "' at " << stamp << " has a rotation quaternion of length "
+                                            << quaternion_length << "; normalised");
+        }
       } catch (const tf2::TransformException& e) {
         error = e.what();
         break;
@@ -200,12 +270,17 @@ bool MuscleDeformationNode::lookupBones(const ros::Time& stamp, LinkPoses& out, 
     }
     {
       std::lock_guard<std::mutex> lock(pending_mutex_);
-      if (stopping_ || pending_.has_value()) {
-        error.clear();
+      if (stopping_) return false;
+      if (pending_.has_value()) {
+        error = "transforms not available before a newer pose arrived (" + error + ")";
         return false;
       }
     }
-    if (ros::WallTime::now() > deadline) return false;
+    if (ros::WallTime::now() > deadline) {
+      error = "transforms not available within tf_wait_s = " + std::to_string(settings_.stream.tf_wait_s) + " s (" +
+              error + ")";
+      return false;
+    }
     ros::WallDuration(0.001).sleep();
   }
 }
@@ -218,38 +293,32 @@ bool MuscleDeformationNode::anyOutputWanted() const {
 void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const Pose pose = poseFromLinkPoses(scene_, link_poses.poses);
   const BoneTransforms transforms = boneTransformsOf(stream_->simulation().bones(), pose);
-  bool reset = false;
-  if (has_previous_) {
-    const BoneMotion motion = largestBoneMotion(previous_transforms_, transforms, bone_centres_);
-    const double moved_m = motion.translation_m, turned_rad = motion.rotation_rad;
-    if (link_poses.stamp < previous_stamp_) {
-      ROS_INFO_STREAM("muscle_deformation: time jumped back from " << previous_stamp_ << " to " << link_poses.stamp
-                                                                   << ": cold start");
-      reset = true;
-    } else if (moved_m > settings_.stream.reset_translation_m || turned_rad > settings_.stream.reset_rotation_rad) {
-      ROS_INFO_STREAM("muscle_deformation: pose jumped (" << moved_m << " m, " << turned_rad
-                                                          << " rad since the previous frame): cold start");
-      reset = true;
-    } else if (moved_m <= settings_.stream.unchanged_translation_m &&
-               turned_rad <= settings_.stream.unchanged_rotation_rad) {
-      std::lock_guard<std::mutex> lock(counters_mutex_);
-      ++counters_.unchanged;
-      return;
-    }
+  const StreamDecision decision = stream_policy_->decide(link_poses.stamp.toSec(), transforms);
+  if (decision.start == StreamStart::unchanged) {
+    std::lock_guard<std::mutex> lock(counters_mutex_);
+    ++counters_.unchanged;
+    return;
   }
-  if (reset) stream_->reset();
+  const bool reset = decision.start == StreamStart::cold && stream_policy_->hasPrevious() &&
+                     settings_.stream.policy.warm_start;
+  if (reset) ROS_INFO_STREAM("muscle_deformation: pose at " << link_poses.stamp << ": cold start: " << decision.reason);
+  if (decision.start == StreamStart::cold) stream_->reset();
 
   const bool want_fibres = fibres_pub_.getNumSubscribers() > 0;
   const bool want_particles = particles_pub_.getNumSubscribers() > 0;
   const bool want_surfaces = surfaces_pub_.getNumSubscribers() > 0;
   const bool want_surface_markers = surface_markers_pub_.getNumSubscribers() > 0;
   const bool want_stats = stats_pub_.getNumSubscribers() > 0;
-  const StartMode start = settings_.stream.warm_start ? StartMode::warm : StartMode::cold;
+  const StartMode start = decision.start == StreamStart::warm ? StartMode::warm : StartMode::cold;
   const PipelineFrame& frame = stream_->solve(pose, start, want_surfaces || want_surface_markers,
                                               want_stats && settings_.stream.stats_metrics);
-  has_previous_ = frame.solve.finite && !frame.solve.solve.diverged;
-  previous_stamp_ = link_poses.stamp;
-  previous_transforms_ = transforms;
+  if (frame.solve.finite && !frame.solve.solve.diverged)
+    stream_policy_->accept(link_poses.stamp.toSec(), transforms);
+  else
+    stream_policy_->reset();  // never warm-start from a broken state
+  if (frame.solve.solve.time_limit_reached)
+    ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: the solve at " << link_poses.stamp << " reached max_solve_time_s = "
+                                                                      << settings_.max_solve_time_s << " s");
 
   muscle_deformation::DeformationStats stats;
   {
@@ -266,6 +335,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     stats.poses_dropped = counters_.dropped;
     stats.poses_unchanged = counters_.unchanged;
     stats.tf_failures = counters_.tf_failures;
+    stats.poses_non_finite = counters_.non_finite_joint_states;
+    stats.poses_future_stamp = counters_.future_stamps;
     stats.resets = counters_.resets;
   }
   if (frame.solve.solve.diverged)
@@ -297,12 +368,14 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
         surfacesToMarkers(*stream_->skinning(), frame.surfaces, muscles, header, settings_.stream.surface_alpha));
   }
   if (want_stats) {
-    muscle_deformation::DeformationStats full = statsToMessage(frame, settings_.pipeline.simulation.solver, header);
+    muscle_deformation::DeformationStats full = statsToMessage(frame, header);
     full.poses_received = stats.poses_received;
     full.poses_solved = stats.poses_solved;
     full.poses_dropped = stats.poses_dropped;
     full.poses_unchanged = stats.poses_unchanged;
     full.tf_failures = stats.tf_failures;
+    full.poses_non_finite = stats.poses_non_finite;
+    full.poses_future_stamp = stats.poses_future_stamp;
     full.resets = stats.resets;
     stats_pub_.publish(full);
   }
@@ -311,22 +384,41 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
 // ---------------------------------------------------------------------------------------------------------------
 // Service
 
-bool MuscleDeformationNode::onDeformPose(muscle_deformation::DeformPose::Request& request,
-                                         muscle_deformation::DeformPose::Response& response) {
-  std::lock_guard<std::mutex> lock(service_mutex_);
-  try {
-    deformPose(request, response);
-  } catch (const std::exception& e) {
+bool MuscleDeformationNode::onDeformPose(ServiceEvent& event) {
+  muscle_deformation::DeformPose::Response& response = event.getResponse();
+  // Counts this call while it is being served or waits; refuses it at once when too many are ahead of it.
+  struct CallCount {
+    std::atomic<int>& count;
+    int value;
+    explicit CallCount(std::atomic<int>& c) : count(c), value(++c) {}
+    ~CallCount() { --count; }
+  } calls(service_calls_);
+  const int capacity = settings_.service.max_queued + 1;
+  auto refuse = [&](const std::string& why) {
     response = muscle_deformation::DeformPose::Response();
     response.success = false;
-    response.message = e.what();
-    ROS_WARN_STREAM("muscle_deformation: ~deform_pose refused: " << e.what());
+    response.message = why;
+    ROS_WARN_STREAM("muscle_deformation: ~deform_pose refused: " << why);
+    return true;  // the answer (success or not) is in the response
+  };
+  if (calls.value > capacity) {
+    return refuse("busy: " + std::to_string(calls.value - 1) + " calls are being served or waiting (one solves at a "
+                  "time, service_max_queued = " + std::to_string(settings_.service.max_queued) +
+                  " may wait); try again later");
   }
-  return true;  // the answer (success or not) is in the response
+  std::lock_guard<std::mutex> lock(service_mutex_);
+  if (shutting_down_) return refuse("the node is shutting down");
+  try {
+    deformPose(event.getRequest(), event.getCallerName(), response);
+  } catch (const std::exception& e) {
+    refuse(e.what());
+  }
+  return true;
 }
 
 std::map<std::string, Eigen::Isometry3d> MuscleDeformationNode::linkPosesFromRequest(
-    const muscle_deformation::DeformPose::Request& request, std::string& frame_id) const {
+    const muscle_deformation::DeformPose::Request& request, std::string& frame_id,
+    std::vector<std::string>& warnings) const {
   const Skeleton& skeleton = scene_.skeleton;
   if (!request.joint_state.name.empty()) {
     const JointValues values = jointValuesFromMessage(request.joint_state);
@@ -334,7 +426,7 @@ std::map<std::string, Eigen::Isometry3d> MuscleDeformationNode::linkPosesFromReq
       (void)value;
       if (!skeleton.joint(name)) throw std::invalid_argument("joint '" + name + "' is not a joint of the URDF");
     }
-    std::map<std::string, Eigen::Isometry3d> root_poses = skeleton.linkPoses(values);
+    std::map<std::string, Eigen::Isometry3d> root_poses = skeleton.linkPoses(values, &warnings);
     // Express the links in the fixed frame when it is a link of the skeleton (as tf would), else in the root.
     const auto fixed = root_poses.find(settings_.fixed_frame);
     frame_id = fixed == root_poses.end() ? skeleton.rootLink() : settings_.fixed_frame;
@@ -359,14 +451,17 @@ std::map<std::string, Eigen::Isometry3d> MuscleDeformationNode::linkPosesFromReq
     }
     if (!skeleton.link(bone.child_frame_id))
       throw std::invalid_argument(what + ": child_frame_id is not a link of the URDF");
-    if (!poses.emplace(bone.child_frame_id, isometryFromMessage(bone.transform, what)).second)
+    double quaternion_length = 1;
+    if (!poses.emplace(bone.child_frame_id, isometryFromMessage(bone.transform, what, &quaternion_length)).second)
       throw std::invalid_argument(what + " is given twice");
+    if (std::abs(quaternion_length - 1.0) > kUnitQuaternionTolerance)
+      warnings.push_back(what + ": rotation quaternion of length " + std::to_string(quaternion_length) + " normalised");
   }
   return poses;
 }
 
 void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Request& request,
-                                       muscle_deformation::DeformPose::Response& response) {
+                                       const std::string& caller, muscle_deformation::DeformPose::Response& response) {
   if (request.max_iterations < 0) {
     throw std::invalid_argument("max_iterations is " + std::to_string(request.max_iterations) +
                                 "; it must be >= 0 (0 = node default)");
@@ -380,9 +475,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
                                 "; it must be a finite number >= 0 (0 = node default)");
   }
   std::string frame_id;
-  const std::map<std::string, Eigen::Isometry3d> link_poses = linkPosesFromRequest(request, frame_id);
+  std::vector<std::string> warnings;
+  const std::map<std::string, Eigen::Isometry3d> link_poses = linkPosesFromRequest(request, frame_id, warnings);
 
-  // Muscles: the request's selection, else the node's.
+  // Muscles: the request's selection, else the node's; always from the scene already in memory.
   const std::vector<std::string>& selection = request.muscles.empty() ? settings_.muscles : request.muscles;
   std::vector<MuscleDescription> selected;
   try {
@@ -390,42 +486,82 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   } catch (const std::exception& e) {
     throw std::invalid_argument(std::string("muscles: ") + e.what());
   }
-  if (selected.empty()) throw std::invalid_argument("muscles: the selection names no muscle");
+  std::vector<std::size_t> indices;
+  for (const MuscleDescription& m : selected) {
+    const auto loaded = std::find_if(scene_.muscle_descriptions.begin(), scene_.muscle_descriptions.end(),
+                                     [&](const MuscleDescription& d) { return d.name == m.name; });
+    if (loaded == scene_.muscle_descriptions.end()) {
+      throw std::invalid_argument("muscles: '" + m.name + "' is in the scene but not loaded by this node (its ~muscles "
+                                  "selection); the service simulates loaded muscles only");
+    }
+    indices.push_back(static_cast<std::size_t>(loaded - scene_.muscle_descriptions.begin()));
+  }
+  if (indices.empty()) throw std::invalid_argument("muscles: the selection names no muscle");
 
-  PipelineSettings settings = settings_.pipeline;
-  settings.simulation.solver_kind = settings_.service.solver_kind;
-  settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
-  SolverSettings& solver = settings.simulation.solver;
-  solver.max_iterations = settings_.service.max_iterations;
-  if (request.max_iterations > 0) solver.max_iterations = request.max_iterations;
-  if (request.displacement_tolerance_m > 0) solver.displacement_tolerance_m = request.displacement_tolerance_m;
-  if (request.time_budget_ms > 0) solver.time_budget_ms = request.time_budget_ms;
-  shareStoppingRule(settings.simulation);
   std::ostringstream key;
-  for (const MuscleDescription& m : selected) key << m.name << ',';
-  key << '|' << solver.max_iterations << '|' << solver.displacement_tolerance_m << '|' << solver.time_budget_ms;
+  for (std::size_t index : indices) key << index << ',';
   if (!service_pipeline_ || service_pipeline_key_ != key.str()) {
     service_pipeline_.reset();
-    std::vector<std::string> names;
-    for (const MuscleDescription& m : selected) names.push_back(m.name);
-    const bool same_muscles = names.size() == scene_.muscle_descriptions.size() &&
-                              std::equal(names.begin(), names.end(), scene_.muscle_descriptions.begin(),
-                                         [](const std::string& n, const MuscleDescription& d) { return n == d.name; });
-    if (same_muscles) {
-      service_pipeline_ =
-          std::make_unique<DeformationPipeline>(scene_.muscle_descriptions, scene_.muscles, scene_.bones, settings);
-    } else {
-      Scene subset = loadScene(scene_description_, scene_.skeleton, rosUriResolver(settings_.package_root),
-                               settings_.package_root, names);
-      service_pipeline_ = std::make_unique<DeformationPipeline>(subset.muscle_descriptions, std::move(subset.muscles),
-                                                                std::move(subset.bones), settings);
+    service_has_previous_ = false;
+    PipelineSettings settings = settings_.pipeline;
+    settings.simulation.solver_kind = settings_.service.solver_kind;
+    settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
+    std::vector<MuscleDescription> descriptions;
+    std::vector<Muscle> muscles;
+    for (std::size_t index : indices) {
+      descriptions.push_back(scene_.muscle_descriptions[index]);
+      muscles.push_back(scene_.muscles[index]);
     }
+    service_pipeline_ =
+        std::make_unique<DeformationPipeline>(std::move(descriptions), std::move(muscles), scene_.bones, settings);
     service_pipeline_key_ = key.str();
   }
   DeformationPipeline& pipeline = *service_pipeline_;
+
+  // Every limit the request gives is honoured, whatever the node's stopping rule: a displacement tolerance makes the
+  // solve stop when it is met (the only convergence criterion), a time budget bounds its wall time, and the node's
+  // max_solve_time_s bounds every call.
+  const SolverSettings& node_solver = settings_.pipeline.simulation.solver;
+  const StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
+  const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
+  const double tolerance_m =
+      request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_solver.displacement_tolerance_m;
+  const double ceiling_ms = 1000.0 * settings_.max_solve_time_s;
+  const double budget_ms = request.time_budget_ms > 0 ? request.time_budget_ms : node_solver.time_budget_ms;
+  SolveLimits limits;
+  limits.wall_time_limit_ms = request.time_budget_ms > 0 ? std::min(request.time_budget_ms, ceiling_ms) : ceiling_ms;
+  limits.cancel = &shutting_down_;
+  pipeline.setStopping(rule, max_iterations, tolerance_m, budget_ms, limits);
+
+  // Warm starts: only from this caller's own previous answer, on the same muscles, and only if no bone moved further
+  // than service_warm_max_*; otherwise cold, and the message says why.
   const Pose pose = poseFromLinkPoses(scene_, link_poses);
-  const PipelineFrame& frame =
-      pipeline.solve(pose, request.warm_start ? StartMode::warm : StartMode::cold, true, pipeline.metrics() != nullptr);
+  const BoneTransforms transforms = boneTransformsOf(pipeline.simulation().bones(), pose);
+  std::string cold_reason;
+  if (request.warm_start) {
+    if (!service_has_previous_) {
+      cold_reason = "there is no previous answer on these muscles";
+    } else if (service_previous_caller_ != caller) {
+      cold_reason = "the previous call came from another client (" + service_previous_caller_ + ")";
+    } else {
+      const BoneMotion motion = largestBoneMotion(service_previous_transforms_, transforms, bone_centres_);
+      if (motion.translation_m > settings_.service.warm_max_translation_m ||
+          motion.rotation_rad > settings_.service.warm_max_rotation_rad) {
+        std::ostringstream why;
+        why << "a bone moved " << motion.translation_m << " m and turned " << motion.rotation_rad
+            << " rad since the previous call (service_warm_max_translation_m " << settings_.service.warm_max_translation_m
+            << ", service_warm_max_rotation_rad " << settings_.service.warm_max_rotation_rad << ")";
+        cold_reason = why.str();
+      }
+    }
+    if (!cold_reason.empty()) pipeline.reset();
+  }
+  const PipelineFrame& frame = pipeline.solve(pose, request.warm_start && cold_reason.empty() ? StartMode::warm
+                                                                                               : StartMode::cold,
+                                              true, pipeline.metrics() != nullptr);
+  service_has_previous_ = frame.solve.finite && !frame.solve.solve.diverged && !frame.solve.solve.cancelled;
+  service_previous_caller_ = caller;
+  service_previous_transforms_ = transforms;
 
   std_msgs::Header header;
   header.stamp = ros::Time::now();
@@ -439,23 +575,40 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   if (frame.has_surfaces) response.surfaces = surfacesToMessage(*pipeline.skinning(), frame.surfaces,
                                                                 pipeline.descriptions(), header);
   response.surfaces.header = header;
-  response.stats = statsToMessage(frame, solver, header);
-  response.success = frame.solve.finite && !frame.solve.solve.diverged;
+  response.stats = statsToMessage(frame, header);
+  const SolveStats& solve = frame.solve.solve;
+  response.success = frame.solve.finite && !solve.diverged && !solve.cancelled;
   std::ostringstream message;
   if (!frame.solve.finite) {
     message << "the solve gave non-finite particle positions";
-  } else if (frame.solve.solve.diverged) {
-    message << "the solve diverged at every time step down to " << frame.solve.solve.time_step_s
+  } else if (solve.diverged) {
+    message << "the solve diverged at every time step down to " << solve.time_step_s
             << " s; the particles are its starting state";
+  } else if (solve.cancelled) {
+    message << "the node is shutting down; the solve was stopped after " << solve.iterations << " iterations";
   } else {
     message << "solved " << system.muscleCount() << " muscles, " << system.particleCount() << " particles in "
-            << frame.solve.solve.iterations << " iterations, " << frame.solve.solve.total_ms << " ms ("
-            << (frame.solve.warm_started ? "warm" : "cold") << " start)";
-    if (frame.solve.solve.divergence_recoveries > 0)
-      message << " after " << frame.solve.solve.divergence_recoveries
-              << " divergence recoveries (time step halved to " << frame.solve.solve.time_step_s << " s)";
+            << solve.iterations << " iterations, " << solve.total_ms << " ms ("
+            << (frame.solve.warm_started ? "warm start from this client's previous call" : "cold start");
+    if (!cold_reason.empty()) message << "; warm start refused: " << cold_reason;
+    message << ")";
+    if (solve.converged)
+      message << "; converged (mean step below " << tolerance_m << " m)";
+    else if (solve.time_limit_reached)
+      message << "; not converged: stopped at the time limit of " << limits.wall_time_limit_ms << " ms ("
+              << (request.time_budget_ms > 0 && request.time_budget_ms <= ceiling_ms ? "the request's time_budget_ms"
+                                                                                     : "the node's max_solve_time_s")
+              << ")";
+    else if (rule == StoppingRule::time_budget && solve.stopping_rule_met)
+      message << "; not converged: the time budget of " << budget_ms << " ms ran out";
+    else
+      message << "; not converged: " << max_iterations << " iterations run";
+    if (solve.divergence_recoveries > 0)
+      message << "; after " << solve.divergence_recoveries << " divergence recoveries (time step halved to "
+              << solve.time_step_s << " s)";
     if (!frame.has_surfaces) message << "; no surfaces: " << pipeline.skinningProblem();
   }
+  for (const std::string& warning : warnings) message << "; warning: " << warning;
   response.message = message.str();
 }
 
@@ -503,23 +656,36 @@ void MuscleDeformationNode::diagnoseSolveTime(diagnostic_updater::DiagnosticStat
 
 void MuscleDeformationNode::diagnosePoses(diagnostic_updater::DiagnosticStatusWrapper& status) {
   std::lock_guard<std::mutex> lock(counters_mutex_);
+  // Each cause on its own: a missing transform, a broken joint state or a clock problem is not a slow solver.
+  std::vector<std::string> problems;
   if (window_tf_failures_ > 0)
-    status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%u poses without transforms: %s", window_tf_failures_,
-                    last_tf_error_.c_str());
-  else if (window_dropped_ > 0)
-    status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%u poses dropped (solver slower than the input)",
-                    window_dropped_);
-  else
+    problems.push_back(std::to_string(window_tf_failures_) + " poses without transforms: " + last_tf_error_);
+  if (window_non_finite_joint_states_ > 0)
+    problems.push_back(std::to_string(window_non_finite_joint_states_) + " joint states with non-finite positions (" +
+                       last_joint_state_error_ + ")");
+  if (window_future_stamps_ > 0)
+    problems.push_back(std::to_string(window_future_stamps_) + " poses stamped ahead of the clock");
+  if (window_dropped_ > 0)
+    problems.push_back(std::to_string(window_dropped_) + " poses dropped (solver slower than the input)");
+  if (problems.empty()) {
     status.summary(diagnostic_msgs::DiagnosticStatus::OK, "every pose handled");
+  } else {
+    std::string summary;
+    for (const std::string& problem : problems) summary += (summary.empty() ? "" : "; ") + problem;
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, summary);
+  }
   status.add("Poses received (total)", counters_.received);
   status.add("Frames solved (total)", counters_.solved);
   status.add("Poses dropped (total)", counters_.dropped);
   status.add("Poses unchanged (total)", counters_.unchanged);
   status.add("tf failures (total)", counters_.tf_failures);
+  status.add("Non-finite joint states (total)", counters_.non_finite_joint_states);
+  status.add("Future stamps (total)", counters_.future_stamps);
   status.add("Cold restarts (total)", counters_.resets);
   // This task runs last: start the next window.
   window_solve_ms_.clear();
   window_solved_ = window_dropped_ = window_tf_failures_ = window_received_ = 0;
+  window_non_finite_joint_states_ = window_future_stamps_ = 0;
   window_start_ = ros::WallTime::now();
 }
 

@@ -1,5 +1,6 @@
 #include "muscle_deformation/node/parameters.hpp"
 
+#include <cmath>
 #include <filesystem>
 #include <stdexcept>
 
@@ -32,14 +33,26 @@ class ParameterReader {
                      std::to_string(max) + "]");
     value = read_value;
   }
+  // roscpp's getParam(int) rounds a floating-point value silently: read the raw value and accept only integers
+  // (a float with no fractional part, e.g. 30.0, counts as one).
   void readInt(const std::string& name, int& value, int min, int max) const {
     if (!node_.hasParam(name)) return;
-    int read_value = 0;
-    if (!node_.getParam(name, read_value)) fail(name, "must be an integer");
-    if (read_value < min || read_value > max)
-      fail(name, "is " + std::to_string(read_value) + ", must be in [" + std::to_string(min) + ", " +
-                     std::to_string(max) + "]");
-    value = read_value;
+    XmlRpc::XmlRpcValue raw;
+    if (!node_.getParam(name, raw)) fail(name, "must be an integer");
+    double number = 0;
+    if (raw.getType() == XmlRpc::XmlRpcValue::TypeInt) {
+      number = static_cast<int>(raw);
+    } else if (raw.getType() == XmlRpc::XmlRpcValue::TypeDouble) {
+      number = static_cast<double>(raw);
+      if (!std::isfinite(number) || number != std::floor(number))
+        fail(name, "is " + std::to_string(number) + ", must be an integer");
+    } else {
+      fail(name, "must be an integer");
+    }
+    if (number < min || number > max)
+      fail(name, "is " + std::to_string(static_cast<long long>(number)) + ", must be in [" + std::to_string(min) +
+                     ", " + std::to_string(max) + "]");
+    value = static_cast<int>(number);
   }
   template <typename Enum, typename Parse>
   void readEnum(const std::string& name, Enum& value, Parse parse) const {
@@ -141,6 +154,10 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readEnum("service_solver", service.solver_kind, solverKindFromString);
   p.readInt("service_lbfgs_history", service.lbfgs_history, 0, 1000);
   p.readInt("service_max_iterations", service.max_iterations, 1, 1000000);
+  p.readInt("service_max_queued", service.max_queued, 0, 100);
+  p.readDouble("service_warm_max_translation_m", service.warm_max_translation_m, 0.0, 1e6);
+  p.readDouble("service_warm_max_rotation_rad", service.warm_max_rotation_rad, 0.0, 7.0);
+  p.readDouble("max_solve_time_s", settings.max_solve_time_s, 1e-3, 3600.0);
   shareStoppingRule(simulation);
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
@@ -163,12 +180,19 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
   p.readEnum("skinning_cage", settings.pipeline.skinning.cage, cageKindFromString);
 
   StreamSettings& stream = settings.stream;
-  p.read("warm_start", stream.warm_start);
+  for (const char* replaced : {"reset_translation_m", "reset_rotation_rad"}) {
+    if (private_node.hasParam(replaced)) {
+      p.fail(replaced, "no longer exists: the stream starts cold only at a discontinuity (time going back, or a bone "
+                       "faster than max_bone_speed_m_per_s / max_bone_angular_speed_rad_per_s); the service's warm "
+                       "starts have service_warm_max_translation_m / service_warm_max_rotation_rad");
+    }
+  }
+  p.read("warm_start", stream.policy.warm_start);
   p.readDouble("tf_wait_s", stream.tf_wait_s, 0.0, 60.0);
-  p.readDouble("reset_translation_m", stream.reset_translation_m, 0.0, 1e6);
-  p.readDouble("reset_rotation_rad", stream.reset_rotation_rad, 0.0, 7.0);
-  p.readDouble("unchanged_translation_m", stream.unchanged_translation_m, 0.0, 1.0);
-  p.readDouble("unchanged_rotation_rad", stream.unchanged_rotation_rad, 0.0, 1.0);
+  p.readDouble("max_bone_speed_m_per_s", stream.policy.max_bone_speed_m_per_s, 1e-6, 1e6);
+  p.readDouble("max_bone_angular_speed_rad_per_s", stream.policy.max_bone_angular_speed_rad_per_s, 1e-6, 1e6);
+  p.readDouble("unchanged_translation_m", stream.policy.unchanged_translation_m, 0.0, 1.0);
+  p.readDouble("unchanged_rotation_rad", stream.policy.unchanged_rotation_rad, 0.0, 1.0);
   p.read("colour_fibres_by_strain", stream.colour_fibres_by_strain);
   double alpha = stream.surface_alpha;
   p.readDouble("surface_alpha", alpha, 0.0, 1.0);

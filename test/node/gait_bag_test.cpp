@@ -46,9 +46,14 @@ TEST(GaitBag, EveryPoseIsSolvedOrCountedAsSkipped) {
   ASSERT_FALSE(stats.empty()) << "no ~stats message arrived";
   const auto& last = stats.back();
   EXPECT_EQ(last.poses_received, static_cast<std::uint32_t>(expected_poses));
-  EXPECT_EQ(last.poses_solved + last.poses_dropped + last.poses_unchanged + last.tf_failures, last.poses_received)
+  EXPECT_EQ(last.poses_solved + last.poses_dropped + last.poses_unchanged + last.tf_failures + last.poses_non_finite +
+                last.poses_future_stamp,
+            last.poses_received)
       << "solved " << last.poses_solved << ", dropped " << last.poses_dropped << ", unchanged "
-      << last.poses_unchanged << ", tf failures " << last.tf_failures;
+      << last.poses_unchanged << ", tf failures " << last.tf_failures << ", non-finite " << last.poses_non_finite
+      << ", future stamps " << last.poses_future_stamp;
+  EXPECT_EQ(last.poses_non_finite, 0u);
+  EXPECT_EQ(last.poses_future_stamp, 0u);
   EXPECT_EQ(last.tf_failures, 0u) << "robot_state_publisher publishes every pose's transforms";
   // At the test's playback rate the solver keeps up: nothing is dropped.
   EXPECT_EQ(last.poses_dropped, 0u);

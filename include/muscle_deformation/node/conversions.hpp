@@ -28,9 +28,18 @@ namespace muscle_deformation::node {
 // Joint names -> positions. Rejects mismatched name/position counts, empty or repeated names and non-finite values.
 JointValues jointValuesFromMessage(const sensor_msgs::JointState& joint_state);
 
-// A rigid transform; rejects non-finite values and quaternions far from unit length (|q| outside [0.9, 1.1]).
-// `what` names the field in the error message.
-Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what);
+// A quaternion whose length differs from 1 by more than this is worth a warning when it is normalised.
+constexpr double kUnitQuaternionTolerance = 1e-6;
+
+// A rigid transform whatever the message holds: the rotation quaternion is normalised (tf2 accepts quaternions a
+// little off unit length, and using one as it is scales and shears the bone). `quaternion_length` receives the length
+// it had. Non-finite values give a non-finite result; callers check.
+Eigen::Isometry3d rigidTransformFromMessage(const geometry_msgs::Transform& transform, double& quaternion_length);
+
+// A rigid transform; rejects non-finite values and quaternions far from unit length (|q| outside [0.9, 1.1]), and
+// normalises the others (their length before in `quaternion_length`, if given). `what` names the field in the error.
+Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what,
+                                      double* quaternion_length = nullptr);
 
 // ----- core -> messages -----
 
@@ -61,8 +70,8 @@ visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinnin
                                                   const std::vector<MuscleDescription>& muscles,
                                                   const std_msgs::Header& header, float alpha);
 
-// Per-frame statistics (the running counters are left at 0 for the caller to fill).
-muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const SolverSettings& solver,
-                                                    const std_msgs::Header& header);
+// Per-frame statistics (the running counters are left at 0 for the caller to fill). `converged` is true only when a
+// convergence criterion was met (SolveStats::converged), never for running out of iterations or time.
+muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const std_msgs::Header& header);
 
 }  // namespace muscle_deformation::node

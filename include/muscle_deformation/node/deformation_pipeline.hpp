@@ -43,6 +43,11 @@ class DeformationPipeline {
   // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
   const PipelineFrame& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
   void reset() { simulation_->reset(); }
+  // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits) {
+    simulation_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
+  }
 
   const MuscleSimulation& simulation() const { return *simulation_; }
   const std::vector<MuscleDescription>& descriptions() const { return descriptions_; }

@@ -1,11 +1,14 @@
 // The roscpp node: skeleton poses from tf in, deformed fibres, particles, surfaces and statistics out, plus the
 // ~deform_pose service. Parameters in config/muscle_deformation.yaml, topics in the README.
 //
-// Threads: roscpp callbacks (joint_states, the service, diagnostics) run on the spinner threads; the streaming solve
+// Threads: joint_states and the diagnostics timer run on the global callback queue (main's spinner); the streaming solve
 // runs on a worker thread of its own that always takes the newest pending pose, so a slow solve never builds a
-// backlog. The service solves on its own DeformationPipeline and never touches the streaming one.
+// backlog. The service runs on a callback queue and spinner of its own, solves on its own DeformationPipeline one call
+// at a time and never touches the streaming one, so no number of service calls can hold up the stream or the
+// diagnostics. Every solve is bounded in time (~max_solve_time_s) and ends within an iteration at shutdown.
 #pragma once
 
+#include "muscle_deformation/core/pose_stream.hpp"
 #include "muscle_deformation/core/scene.hpp"
 #include "muscle_deformation/node/deformation_pipeline.hpp"
 #include "muscle_deformation/node/parameters.hpp"
@@ -13,11 +16,14 @@
 #include <muscle_deformation/DeformPose.h>
 
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <ros/callback_queue.h>
 #include <ros/ros.h>
+#include <ros/spinner.h>
 #include <sensor_msgs/JointState.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
 
+#include <atomic>
 #include <condition_variable>
 #include <map>
 #include <memory>
@@ -39,31 +45,38 @@ class MuscleDeformationNode {
   MuscleDeformationNode& operator=(const MuscleDeformationNode&) = delete;
 
  private:
+  // Why a pose was not solved is counted per cause, so that the diagnostics say what happened.
   struct Counters {
-    std::uint32_t received = 0, solved = 0, dropped = 0, unchanged = 0, tf_failures = 0, resets = 0,
-                  non_finite = 0, divergence_recoveries = 0, diverged = 0;
+    std::uint32_t received = 0, solved = 0, dropped = 0, unchanged = 0, tf_failures = 0, non_finite_joint_states = 0,
+                  future_stamps = 0, resets = 0, non_finite = 0, divergence_recoveries = 0, diverged = 0;
   };
   struct LinkPoses {
     ros::Time stamp;
     std::map<std::string, Eigen::Isometry3d> poses;  // bone links in the fixed frame
   };
+  using ServiceEvent = ros::ServiceEvent<muscle_deformation::DeformPose::Request, muscle_deformation::DeformPose::Response>;
 
   // Streaming
   void onJointStates(const sensor_msgs::JointState::ConstPtr& message);
   void workerLoop();
-  // Waits (wall time, up to tf_wait_s) until every bone's transform at `stamp` is available. Returns false, with
-  // `error` set, on a tf failure; returns false with an empty error when a newer pose arrived meanwhile.
+  // Waits (wall time, up to tf_wait_s, or until a newer pose arrives) until every bone's transform at `stamp` is
+  // available. Returns false, with `error` naming the missing transform, if they did not all arrive.
   bool lookupBones(const ros::Time& stamp, LinkPoses& out, std::string& error);
+  void countUnsolvedPose(const ros::Time& stamp, const std::string& error);
+  // Warns (throttled) about joint values outside their URDF limits.
+  void warnAboutJointLimits(const sensor_msgs::JointState& message);
   void solveStreamFrame(const LinkPoses& link_poses);
   bool anyOutputWanted() const;
 
   // Service
-  bool onDeformPose(muscle_deformation::DeformPose::Request& request, muscle_deformation::DeformPose::Response& response);
+  bool onDeformPose(ServiceEvent& event);
   // Throws std::invalid_argument (bad request) or a core error; fills the response on success.
-  void deformPose(const muscle_deformation::DeformPose::Request& request,
+  void deformPose(const muscle_deformation::DeformPose::Request& request, const std::string& caller,
                   muscle_deformation::DeformPose::Response& response);
+  // `warnings` collects joint values outside their URDF limits.
   std::map<std::string, Eigen::Isometry3d> linkPosesFromRequest(const muscle_deformation::DeformPose::Request& request,
-                                                                std::string& frame_id) const;
+                                                                std::string& frame_id,
+                                                                std::vector<std::string>& warnings) const;
 
   // Diagnostics
   void diagnoseOutputRate(diagnostic_updater::DiagnosticStatusWrapper& status);
@@ -77,9 +90,21 @@ class MuscleDeformationNode {
   std::vector<Eigen::Vector3d> bone_centres_;  // rest centroid of each bone (for the pose-jump measure)
   std::unique_ptr<DeformationPipeline> stream_;
 
-  std::mutex service_mutex_;
+  // Service: its own queue and threads. One call solves at a time; up to ~service_max_queued wait for it, further
+  // calls are refused at once.
+  ros::CallbackQueue service_queue_;
+  std::unique_ptr<ros::AsyncSpinner> service_spinner_;
+  std::atomic<int> service_calls_{0};  // being served or waiting
+  std::mutex service_mutex_;           // guards everything below
   std::unique_ptr<DeformationPipeline> service_pipeline_;
   std::string service_pipeline_key_;
+  // Warm starts continue the previous call of the same caller only (see deformPose).
+  std::string service_previous_caller_;
+  BoneTransforms service_previous_transforms_;
+  bool service_has_previous_ = false;
+
+  // Raised at shutdown: every running solve ends after its current iteration.
+  std::atomic<bool> shutting_down_{false};
 
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
@@ -99,14 +124,13 @@ class MuscleDeformationNode {
   mutable std::mutex counters_mutex_;
   Counters counters_;
   std::vector<double> window_solve_ms_;
-  std::uint32_t window_solved_ = 0, window_dropped_ = 0, window_tf_failures_ = 0, window_received_ = 0;
+  std::uint32_t window_solved_ = 0, window_dropped_ = 0, window_tf_failures_ = 0, window_received_ = 0,
+                window_non_finite_joint_states_ = 0, window_future_stamps_ = 0;
   ros::WallTime window_start_;
-  std::string last_tf_error_;
+  std::string last_tf_error_, last_joint_state_error_;
 
-  // Worker-only state of the stream.
-  bool has_previous_ = false;
-  ros::Time previous_stamp_;
-  BoneTransforms previous_transforms_;
+  // Worker-only state of the stream: warm, cold or unchanged for each new pose.
+  std::unique_ptr<PoseStream> stream_policy_;
 
   std::thread worker_;
 };

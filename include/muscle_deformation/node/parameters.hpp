@@ -1,6 +1,7 @@
 // The node's private parameters (documented with units in config/muscle_deformation.yaml) read into plain settings.
 #pragma once
 
+#include "muscle_deformation/core/pose_stream.hpp"
 #include "muscle_deformation/node/deformation_pipeline.hpp"
 
 #include <ros/node_handle.h>
@@ -11,12 +12,8 @@
 namespace muscle_deformation::node {
 
 struct StreamSettings {
-  bool warm_start = true;                 // start each frame from the previous result
+  PoseStreamSettings policy;              // warm / cold / unchanged (warm_start, max_bone_speed_*, unchanged_*)
   double tf_wait_s = 0.2;                 // wall time to wait for a pose's transforms before counting a tf failure
-  double reset_translation_m = 0.05;      // a bone moving further than this between two frames forces a cold start
-  double reset_rotation_rad = 0.5;        // same for rotation
-  double unchanged_translation_m = 1e-7;  // no bone moved more than this (and unchanged_rotation_rad): skip the solve
-  double unchanged_rotation_rad = 1e-7;
   bool colour_fibres_by_strain = false;
   float surface_alpha = 0.8f;             // opacity of ~surface_markers
   bool stats_metrics = true;              // measure surface fidelity for ~stats (costs a few ms per frame)
@@ -29,6 +26,9 @@ struct ServiceSettings {
   SolverKind solver_kind = SolverKind::local_global;  // ~service_solver
   int lbfgs_history = 16;                             // ~service_lbfgs_history (local_global only)
   int max_iterations = 120;                           // ~service_max_iterations (a request's max_iterations wins)
+  int max_queued = 4;                   // ~service_max_queued: calls that may wait while one solves; more are refused
+  double warm_max_translation_m = 0.05;  // ~service_warm_max_translation_m: a warm start further away starts cold
+  double warm_max_rotation_rad = 0.5;    // ~service_warm_max_rotation_rad
 };
 
 struct NodeSettings {
@@ -36,6 +36,7 @@ struct NodeSettings {
   std::string scene_path;                // ~scene
   std::vector<std::string> muscles;      // ~muscles: names or tags, empty = all
   std::string fixed_frame = "pelvis";    // ~fixed_frame
+  double max_solve_time_s = 10.0;        // ~max_solve_time_s: wall-time ceiling of any solve, stream or service
   PipelineSettings pipeline;  // the streaming solve's
   StreamSettings stream;
   ServiceSettings service;

@@ -1,0 +1,123 @@
+// The converters between core results and ROS messages, without a roscore.
+#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/node/conversions.hpp"
+
+#include <gtest/gtest.h>
+#include <sensor_msgs/point_cloud2_iterator.h>
+
+#include <cmath>
+#include <limits>
+
+namespace md = muscle_deformation;
+namespace node = muscle_deformation::node;
+
+namespace {
+
+geometry_msgs::Transform transformOf(const Eigen::Quaterniond& rotation, const Eigen::Vector3d& translation) {
+  geometry_msgs::Transform transform;
+  transform.rotation.w = rotation.w();
+  transform.rotation.x = rotation.x();
+  transform.rotation.y = rotation.y();
+  transform.rotation.z = rotation.z();
+  transform.translation.x = translation.x();
+  transform.translation.y = translation.y();
+  transform.translation.z = translation.z();
+  return transform;
+}
+
+}  // namespace
+
+TEST(Conversions, ANonUnitQuaternionGivesARigidTransformAndItsLength) {
+  const Eigen::Quaterniond unit(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()));
+  const Eigen::Quaterniond scaled(unit.coeffs() * 1.004);
+  double length = 0;
+  const Eigen::Isometry3d transform =
+      node::rigidTransformFromMessage(transformOf(scaled, Eigen::Vector3d(1, 2, 3)), length);
+  EXPECT_NEAR(length, 1.004, 1e-12);
+  EXPECT_TRUE((transform.linear() * transform.linear().transpose()).isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+  EXPECT_NEAR(transform.linear().determinant(), 1.0, 1e-12);
+  EXPECT_TRUE(transform.linear().isApprox(unit.toRotationMatrix(), 1e-12));
+  EXPECT_TRUE(transform.translation().isApprox(Eigen::Vector3d(1, 2, 3)));
+}
+
+TEST(Conversions, ServiceTransformsAreNormalisedAndFarFromUnitOnesRefused) {
+  const Eigen::Quaterniond unit(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()));
+  double length = 0;
+  const Eigen::Isometry3d normalised =
+      node::isometryFromMessage(transformOf(Eigen::Quaterniond(unit.coeffs() * 1.05), Eigen::Vector3d::Zero()),
+                                "bone_poses[0]", &length);
+  EXPECT_NEAR(length, 1.05, 1e-12);
+  EXPECT_TRUE(normalised.linear().isApprox(unit.toRotationMatrix(), 1e-12));
+  try {
+    node::isometryFromMessage(transformOf(Eigen::Quaterniond(unit.coeffs() * 2.0), Eigen::Vector3d::Zero()),
+                              "bone_poses[3]");
+    ADD_FAILURE() << "a quaternion of length 2 was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("bone_poses[3]"), std::string::npos) << e.what();
+  }
+  geometry_msgs::Transform nan = transformOf(unit, Eigen::Vector3d::Zero());
+  nan.translation.y = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(node::isometryFromMessage(nan, "x"), std::invalid_argument);
+}
+
+TEST(Conversions, JointStatesNameTheirProblem) {
+  sensor_msgs::JointState state;
+  state.name = {"hip", "knee"};
+  state.position = {0.1, 0.2};
+  const md::JointValues values = node::jointValuesFromMessage(state);
+  EXPECT_EQ(values.at("knee"), 0.2);
+  state.position = {0.1};
+  EXPECT_THROW(node::jointValuesFromMessage(state), std::invalid_argument);
+  state.position = {0.1, std::numeric_limits<double>::infinity()};
+  try {
+    node::jointValuesFromMessage(state);
+    ADD_FAILURE() << "an infinite position was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("'knee'"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) {
+  node::PipelineFrame frame;
+  frame.solve.solve.iterations = 30;
+  frame.solve.solve.stopping_rule_met = true;  // the iterations rule ran its count
+  frame.solve.solve.converged = false;
+  frame.solve.solve.max_strain = 4.5e4;
+  frame.solve.solve.strain_p99 = 0.12;
+  frame.solve.solve.time_limit_reached = true;
+  std_msgs::Header header;
+  header.frame_id = "pelvis";
+  const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, header);
+  EXPECT_FALSE(stats.converged);
+  EXPECT_TRUE(stats.time_limit_reached);
+  EXPECT_EQ(stats.iterations, 30);
+  EXPECT_EQ(stats.max_strain, 4.5e4);
+  EXPECT_EQ(stats.strain_p99, 0.12);
+  EXPECT_FALSE(stats.has_surface_metrics);
+  EXPECT_EQ(stats.header.frame_id, "pelvis");
+  frame.solve.solve.converged = true;
+  EXPECT_TRUE(node::statsToMessage(frame, header).converged);
+}
+
+TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
+  Eigen::Matrix3Xd positions(3, 3);
+  positions << 0, 0.1, 0.2,  //
+      0.01, 0.02, 0.03,      //
+      -0.5, -0.25, 0.125;
+  md::MassSpringSystem system = md::systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.is_fixed[0] = 1;
+  system.fixed_bone[0] = 2;
+  std_msgs::Header header;
+  header.frame_id = "pelvis";
+  const sensor_msgs::PointCloud2 cloud = node::particlesToCloud(system, positions, header);
+  ASSERT_EQ(cloud.width * cloud.height, 3u);
+  EXPECT_EQ(cloud.header.frame_id, "pelvis");
+  sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
+  sensor_msgs::PointCloud2ConstIterator<std::int32_t> bone(cloud, "bone");
+  for (int i = 0; i < 3; ++i, ++x, ++y, ++z, ++bone) {
+    EXPECT_FLOAT_EQ(*x, static_cast<float>(positions(0, i)));
+    EXPECT_FLOAT_EQ(*y, static_cast<float>(positions(1, i)));
+    EXPECT_FLOAT_EQ(*z, static_cast<float>(positions(2, i)));
+    EXPECT_EQ(*bone, i == 0 ? 2 : -1);
+  }
+}
