@@ -43,6 +43,17 @@ class BadParameters(unittest.TestCase):
         self.assertNotEqual(code, 0)
         self.assertIn("lbfgs_history and chebyshev_rho exclude each other", output)
 
+    def test_non_integer_value_for_an_integer_parameter_is_refused_not_rounded(self):
+        code, output = self.run_node("_max_iterations:=30.5")
+        self.assertNotEqual(code, 0)
+        self.assertIn("parameter /bad_parameters_node/max_iterations is 30.500000, must be an integer", output)
+
+    def test_a_replaced_parameter_names_its_successors(self):
+        code, output = self.run_node("_reset_translation_m:=0.05")
+        self.assertNotEqual(code, 0)
+        self.assertIn("reset_translation_m no longer exists", output)
+        self.assertIn("max_bone_speed_m_per_s", output)
+
 
 if __name__ == "__main__":
     rosunit.unitrun(PACKAGE, "bad_parameters", BadParameters)
