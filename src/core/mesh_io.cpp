@@ -279,10 +279,8 @@ std::vector<Polyline> polylinesFromPolyData(const std::string& path, const PolyD
   for (std::size_t c = 0; c < data.lines.size(); ++c) {
     const auto begin = data.lines.offsets[c];
     const auto count = data.lines.offsets[c + 1] - begin;
-    if (count < 2) {
-      fail(path, "line " + std::to_string(c) + " has " + std::to_string(count) + " point" + (count == 1 ? "" : "s") +
-                     "; a polyline needs at least 2");
-    }
+    // A line of fewer than 2 points is kept: the model skips it with a warning, as it skips a zero-length or
+    // non-finite one (one rule for every degenerate fibre, applied where fibres are used).
     Polyline line(3, count);
     for (std::int64_t k = 0; k < count; ++k) {
       const auto p = static_cast<std::size_t>(data.lines.connectivity[static_cast<std::size_t>(begin + k)]);

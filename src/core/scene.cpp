@@ -1,6 +1,7 @@
 // The scene half of scene loading: URI resolution, the scene YAML, and assembling bones and muscles at rest.
 #include "muscle_deformation/core/scene.hpp"
 
+#include "muscle_deformation/core/deformation_metrics.hpp"
 #include "muscle_deformation/core/mesh_io.hpp"
 
 #include <yaml-cpp/yaml.h>
@@ -94,24 +95,24 @@ UriResolver makeUriResolver(std::map<std::string, std::string> package_roots, st
       const std::string package = rest.substr(0, slash);
       const auto root = roots.find(package);
       if (root == roots.end()) {
-        throw SceneError("mesh '" + uri + "': unknown package '" + package + "' (no root directory given for it)");
+        throw SceneError("'" + uri + "': unknown package '" + package + "' (no root directory given for it)");
       }
       path = slash == std::string::npos ? root->second : (fs::path(root->second) / rest.substr(slash + 1)).string();
     } else if (startsWith(uri, "file://")) {
       path = uri.substr(7);
       if (!startsWith(path, "/")) {
-        throw SceneError("mesh '" + uri + "': only local absolute file URIs (file:///path) are supported");
+        throw SceneError("'" + uri + "': only local absolute file URIs (file:///path) are supported");
       }
     } else if (uri.find("://") != std::string::npos) {
-      throw SceneError("mesh '" + uri + "': unsupported URI scheme (use package://, file:// or a path)");
+      throw SceneError("'" + uri + "': unsupported URI scheme (use package://, file:// or a path)");
     } else if (uri.empty()) {
-      throw SceneError("mesh URI is empty");
+      throw SceneError("empty URI");
     } else {
       path = fs::path(uri).is_absolute() ? uri : (fs::path(base) / uri).string();
     }
     std::error_code error;
     if (!fs::is_regular_file(path, error)) {
-      throw SceneError("mesh '" + uri + "' resolves to '" + path + "', which is not a readable file");
+      throw SceneError("'" + uri + "' resolves to '" + path + "', which is not a readable file");
     }
     return path;
   };
@@ -283,17 +284,60 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
   for (const MuscleDescription& m : scene.muscle_descriptions) {
     Muscle muscle;
     muscle.name = m.name;
-    muscle.surface = loadClosedSurface(resolveScenePath(m.surface_file, package_root));
-    const std::string fibre_path = resolveScenePath(m.fibre_file, package_root);
+    // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths are relative
+    // to the package root.
+    const auto scenePath = [&](const std::string& path) {
+      return startsWith(path, "package://") || startsWith(path, "file://") ? resolve_mesh(path)
+                                                                            : resolveScenePath(path, package_root);
+    };
+    std::string surface_path, fibre_path;
+    try {
+      surface_path = scenePath(m.surface_file);
+      fibre_path = startsWith(m.fibre_file, "package://") || startsWith(m.fibre_file, "file://")
+                       ? scenePath(m.fibre_file)
+                       : resolveScenePath(m.fibre_file, package_root);
+    } catch (const SceneError& e) {
+      throw SceneError(description.path + ": muscle '" + m.name + "': " + e.what());
+    }
+    muscle.surface = loadClosedSurface(surface_path);
     if (!fs::is_regular_file(fibre_path)) {
       throw SceneError(description.path + ": fibre file of muscle '" + m.name + "' does not exist: " + fibre_path +
                        " (make it with generate_fibres --scene " + description.path + ")");
     }
     muscle.fibres = loadPolylines(fibre_path);
     if (muscle.fibres.empty()) throw SceneError(fibre_path + ": no fibres in the file (muscle '" + m.name + "')");
+    const FibreExcursion excursion = fibreExcursion(muscle);
+    if (excursion.max_outside_m > kFibreOutsideToleranceM) {
+      std::ostringstream message;
+      message << fibre_path << ": fibre " << excursion.fibre << " of muscle '" << m.name << "' runs "
+              << 1000.0 * excursion.max_outside_m << " mm outside the muscle's surface (at its point "
+              << excursion.point << "; fibres may end at most " << 1000.0 * kFibreOutsideToleranceM
+              << " mm outside). Is it the fibre file of another muscle, or in other units or another frame than "
+              << surface_path << "? generate_fibres makes fibres that fit";
+      throw SceneError(message.str());
+    }
     scene.muscles.push_back(std::move(muscle));
   }
   return scene;
+}
+
+FibreExcursion fibreExcursion(const Muscle& muscle) {
+  FibreExcursion excursion;
+  const ClosedSurfaceInsideTest surface(muscle.surface, muscle.name);
+  for (std::size_t f = 0; f < muscle.fibres.size(); ++f) {
+    const Polyline& fibre = muscle.fibres[f];
+    for (Eigen::Index k = 0; k < fibre.cols(); ++k) {
+      const Eigen::Vector3d point = fibre.col(k);
+      if (!point.allFinite() || surface.contains(point)) continue;
+      const double outside = surface.distanceToSurface(point);
+      if (outside > excursion.max_outside_m) {
+        excursion.max_outside_m = outside;
+        excursion.fibre = static_cast<int>(f);
+        excursion.point = static_cast<int>(k);
+      }
+    }
+  }
+  return excursion;
 }
 
 Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses) {

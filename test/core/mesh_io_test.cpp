@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -330,4 +331,16 @@ TEST(Scale, MillimetreCubeBecomesOneMillimetre) {
   const md::TriangleMesh mesh = md::loadTriangleMesh(data("cube.obj"), 0.001);
   EXPECT_NEAR(md::boundsOf(mesh.vertices).max.x(), 0.001, 1e-18);
   EXPECT_NEAR(md::enclosedVolume(mesh), 1e-9, 1e-21);
+}
+
+TEST(LoadPolylines, ASinglePointLineIsKeptForTheModelToSkipLikeAZeroLengthOne) {
+  // One rule for degenerate fibres: the loader keeps them and the model skips them with a warning (it used to abort
+  // loading for a single point while a zero-length fibre was skipped).
+  const std::string path = (std::filesystem::temp_directory_path() / "md_single_point_line.vtk").string();
+  std::ofstream(path) << "# vtk DataFile Version 3.0\nfibres\nASCII\nDATASET POLYDATA\nPOINTS 3 double\n"
+                         "0 0 0\n0 0 1\n5 5 5\nLINES 2 5\n2 0 1\n1 2\n";
+  const std::vector<md::Polyline> lines = md::loadPolylines(path);
+  ASSERT_EQ(lines.size(), 2u);
+  EXPECT_EQ(lines[0].cols(), 2);
+  EXPECT_EQ(lines[1].cols(), 1);
 }

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -376,4 +377,71 @@ TEST(Scene, AMuscleOnALinkWithoutCollisionMeshIsRefusedNamingBoth) {
   EXPECT_CONTAINS(message, "'pelvis'");
   EXPECT_CONTAINS(message, "no <collision> mesh");
   EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
+}
+
+TEST(Scene, PackageUrisInTheSceneFileResolveLikeTheUrdfsAndNameTheMuscleWhenTheyDoNot) {
+  md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  md::MuscleDescription& muscle = description.muscles[0];
+  muscle.surface_file = "package://muscle_deformation/" + muscle.surface_file;
+  muscle.fibre_file = "package://muscle_deformation/" + muscle.fibre_file;
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {muscle.name});
+  ASSERT_EQ(scene.muscles.size(), 1u);
+  EXPECT_GT(scene.muscles[0].fibres.size(), 0u);
+
+  muscle.surface_file = "package://other_pkg/surface.stl";
+  const std::string message = md::testing::errorMessageOf<md::SceneError>(
+      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+  EXPECT_CONTAINS(message, "unknown package 'other_pkg'");
+  EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
+  EXPECT_EQ(message.find(kPackage + "/package:"), std::string::npos) << "no path glued from the package root and a URI";
+}
+
+TEST(Scene, FibreExcursionIsTheDeepestFibrePointOutsideTheSurface) {
+  md::Muscle muscle;
+  muscle.name = "cube";
+  muscle.surface = md::testing::unitCube();
+  md::Polyline inside(3, 2), leaving(3, 3);
+  inside << 0.2, 0.8, 0.5, 0.5, 0.5, 0.5;
+  leaving << 0.5, 0.5, 0.5,  //
+      0.5, 0.5, 0.5,         //
+      0.5, 1.3, 1.1;
+  muscle.fibres = {inside};
+  EXPECT_EQ(md::fibreExcursion(muscle).max_outside_m, 0.0);
+  EXPECT_EQ(md::fibreExcursion(muscle).fibre, -1);
+  muscle.fibres.push_back(leaving);
+  const md::FibreExcursion excursion = md::fibreExcursion(muscle);
+  EXPECT_NEAR(excursion.max_outside_m, 0.3, 1e-12);
+  EXPECT_EQ(excursion.fibre, 1);
+  EXPECT_EQ(excursion.point, 1);
+}
+
+TEST(Scene, EveryBundledMusclesFibresStayWithinTheToleranceOfItsSurface) {
+  const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage);  // refuses a fibre further out
+  double worst = 0;
+  for (const md::Muscle& muscle : scene.muscles) worst = std::max(worst, md::fibreExcursion(muscle).max_outside_m);
+  EXPECT_LE(worst, md::kFibreOutsideToleranceM);
+  std::printf("bundled scene: fibres leave their surface by at most %.2f mm\n", 1000.0 * worst);
+}
+
+TEST(Scene, FibresFarOutsideTheirMuscleAreRefusedNamingMuscleFibreDistanceAndTolerance) {
+  md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  md::MuscleDescription& muscle = description.muscles[0];
+  // The muscle's own fibres shifted 5 cm: a fibre file in the wrong frame.
+  std::vector<md::Polyline> fibres = md::loadPolylines(md::resolveScenePath(muscle.fibre_file, kPackage));
+  for (md::Polyline& fibre : fibres) fibre.row(0).array() += 0.05;
+  const std::string shifted = (fs::temp_directory_path() / "md_scene_test_shifted_fibres.vtk").string();
+  md::savePolylinesVtk(shifted, fibres);
+  muscle.fibre_file = shifted;
+  const std::string message = md::testing::errorMessageOf<md::SceneError>(
+      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+  EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
+  EXPECT_CONTAINS(message, "mm outside the muscle's surface");
+  EXPECT_CONTAINS(message, "at most 5 mm outside");
 }

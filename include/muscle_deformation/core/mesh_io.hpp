@@ -29,6 +29,7 @@ TriangleMesh loadTriangleMesh(const std::string& path, double scale_to_metres = 
 TriangleMesh loadClosedSurface(const std::string& path, double scale_to_metres = 1.0);
 
 // Reads polylines (e.g. muscle fibres): .vtk legacy POLYDATA LINES (ASCII or BINARY), .vtp Lines, .obj 'l' records.
+// Degenerate lines (fewer than 2 points) are returned as they are; buildMassSpringSystem skips them with a warning.
 std::vector<Polyline> loadPolylines(const std::string& path, double scale_to_metres = 1.0);
 
 // Writers used by tools and tests: ASCII legacy VTK POLYDATA with LINES, binary STL.

@@ -121,10 +121,26 @@ struct Scene {
   std::map<std::string, Eigen::Isometry3d> rest_link_poses;  // link poses at zero configuration, scene frame
 };
 
-// Loads the selected muscles and every bone with collision meshes. `package_root` resolves relative scene paths.
-// Throws SceneError (or LoadError from the mesh loaders, naming the file) on any missing or broken input.
+// Loads the selected muscles and every bone with collision meshes. `package_root` resolves relative scene paths;
+// package:// and file:// URIs in the scene go through `resolve_mesh`. Throws SceneError (or LoadError from the mesh
+// loaders, naming the file) on any missing or broken input: among others a scene without bones (no link with a
+// <collision> mesh), a muscle attached to a link without one, and fibres further than kFibreOutsideToleranceM outside
+// their muscle's surface.
 Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
                 const std::string& package_root, const std::vector<std::string>& selection = {});
+
+// How far a muscle's fibres stray outside its closed surface: the largest distance of a fibre point outside it (0
+// when every point is inside), and which point that is.
+struct FibreExcursion {
+  double max_outside_m = 0;
+  int fibre = -1, point = -1;  // -1: no point outside
+};
+FibreExcursion fibreExcursion(const Muscle& muscle);
+
+// loadScene refuses fibres that leave their muscle's surface by more than this (m): fibres traced through a segmented
+// volume end on or just outside its surface, while a fibre file of another muscle, in other units or in another frame
+// lies centimetres away.
+constexpr double kFibreOutsideToleranceM = 0.005;
 
 // A scene path (`surface:`, `fibres:`, `urdf:`) as a file path: absolute paths stay, others are relative to
 // package_root.
