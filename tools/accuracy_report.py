@@ -372,7 +372,7 @@ def stability_section(rows):
     pbd = [row for row in rows if row.get("case") == "pbd_femur_flexion"]
     lines = ["## Stability on hard cases (report issue)", "",
              "The bundled thigh13 muscles at 20 particles per fibre with the node's defaults "
-             "(`config/muscle_deformation.yaml`; iterations per frame in the table). Every case is also a gtest on the synthetic scene (`test/core/stability_test.cpp`), where the "
+             "(`config/muscle_deformation.yaml`; iterations per frame in the table). Every case is also a gtest on the synthetic scene (`core/test/stability_test.cpp`), where the "
              "recovered error is asserted against stated bounds. Divergence: three growing, direction-reversing steps "
              "above a quarter of the mean spring rest length; recovery restores the solve's start and halves dt "
              "(kept for later frames). Raw numbers: `out/bench/stability.json`.", ""]
