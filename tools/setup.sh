@@ -19,4 +19,7 @@ if ((${#missing[@]})); then
 fi
 
 mkdir -p "$root/.ws/src"
+# catkin records the test environment when it first configures and keeps only folders that exist then: without this
+# one the Python tests and rosservice cannot import the package's generated messages on a fresh clone.
+mkdir -p "$root/.ws/devel/lib/python3/dist-packages"
 ln -sfn "$root" "$root/.ws/src/muscle_deformation"
