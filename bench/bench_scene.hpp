@@ -2,9 +2,9 @@
 // that measure on real anatomy.
 #pragma once
 
-#include "muscle_deformation/core/joint_trajectory.hpp"
-#include "muscle_deformation/core/model.hpp"
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/joint_trajectory.hpp"
+#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <string>
 #include <vector>

@@ -6,11 +6,11 @@
 #include "iteration_split.hpp"
 #include "paper_figures.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <array>
 #include <atomic>

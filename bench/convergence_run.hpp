@@ -2,10 +2,10 @@
 // snapshot takes is left out of the reported wall time, so the curve shows what a solve stopped there would cost.
 #pragma once
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/mass_spring_system.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
 #include <Eigen/Core>
 

@@ -15,10 +15,10 @@
 #include "node_defaults.hpp"
 #include "progress.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
 #include <algorithm>
 #include <cstdio>

@@ -4,9 +4,9 @@
 
 #include "bench_util.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
 #include <vector>
 

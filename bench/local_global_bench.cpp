@@ -5,12 +5,12 @@
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/local_global_solver.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <cmath>
 #include <cstdio>

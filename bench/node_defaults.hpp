@@ -3,10 +3,10 @@
 // are checked against the core defaults instead of converted, and a mismatch stops the benchmark.
 #pragma once
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/pose_stream.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/spring_layout.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include <yaml-cpp/yaml.h>
 

@@ -4,7 +4,7 @@
 // 13 thigh muscles x 64 fibres, 26-cubic springs, one Core2Duo E6300 core (2006).
 #pragma once
 
-#include "muscle_deformation/core/collision.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
 #include "muscle_deformation/core/geometry.hpp"
 
 #include <Eigen/Geometry>

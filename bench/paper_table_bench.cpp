@@ -14,12 +14,12 @@
 #include "paper_figures.hpp"
 #include "progress.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <cstdio>
 #include <filesystem>

@@ -2,15 +2,15 @@
 // fidelity of each method (volume error, surface inside bones) on the synthetic thigh after a bending pose.
 #include "bench_util.hpp"
 
-#include "muscle_deformation/core/scene.hpp"
-#include "muscle_deformation/core/simulation.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
 
-#include "muscle_deformation/core/deformation_metrics.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/surface_skinning.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <cstdio>
 #include <filesystem>

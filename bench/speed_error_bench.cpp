@@ -9,15 +9,15 @@
 #include "convergence_run.hpp"
 #include "progress.hpp"
 
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/deformation_metrics.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/geometry.hpp"
-#include "muscle_deformation/core/local_global_solver.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/spring_layout.hpp"
-#include "muscle_deformation/core/surface_skinning.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/core/model/spring_layout.hpp"
+#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -7,9 +7,9 @@
 #include "convergence_run.hpp"
 #include "node_defaults.hpp"
 
-#include "muscle_deformation/core/local_global_solver.hpp"
-#include "muscle_deformation/core/scene.hpp"
-#include "muscle_deformation/core/simulation.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
 
 #include <algorithm>
 #include <chrono>

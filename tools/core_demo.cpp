@@ -1,8 +1,8 @@
 // Core-only demo: the synthetic thigh flexes at hip and knee over a sequence of frames; each frame is solved warm
 // from the previous one. Prints per-frame statistics, writes them as CSV and the last frame's fibres as VTK.
-#include "muscle_deformation/core/mesh_io.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <cstdio>
 #include <filesystem>

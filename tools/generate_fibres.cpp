@@ -6,9 +6,9 @@
 //
 // Exit status: 0 = fibres written and every check passed, 1 = bad input or failure (message on stderr),
 // 2 = fibres written but some check failed (listed on stdout).
-#include "muscle_deformation/core/fibre_generator.hpp"
-#include "muscle_deformation/core/mesh_io.hpp"
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/preprocessing/fibre_generator.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <chrono>
 #include <cmath>

@@ -1,9 +1,9 @@
 // Specification of the sphere collision stage (thesis 4.3, GRAPP 2014 section 3.3).
-#include "muscle_deformation/core/collision.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <gtest/gtest.h>
 

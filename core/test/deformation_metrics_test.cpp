@@ -1,9 +1,9 @@
 // Specifications of the fidelity metrics: enclosed volume, the exact inside-bone test and its depth, fibre length
 // change, and refusal of open surfaces.
-#include "muscle_deformation/core/deformation_metrics.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
 

@@ -1,8 +1,8 @@
 // Specifications of the fibre generator: analytic behaviour on a capsule, the committed fibre files, bad inputs.
-#include "muscle_deformation/core/fibre_generator.hpp"
+#include "muscle_deformation/preprocessing/fibre_generator.hpp"
 
-#include "muscle_deformation/core/mesh_io.hpp"
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include "test_helpers.hpp"
 

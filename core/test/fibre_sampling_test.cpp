@@ -1,5 +1,5 @@
 // Sampling particles along fibres (GRAPP 2014 section 3.1).
-#include "muscle_deformation/core/fibre_sampling.hpp"
+#include "muscle_deformation/core/model/fibre_sampling.hpp"
 
 #include <gtest/gtest.h>
 

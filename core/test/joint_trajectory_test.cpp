@@ -1,5 +1,5 @@
 // Specifications of the joint-trajectory CSV loader (gait tables for ROS-free replay).
-#include "muscle_deformation/core/joint_trajectory.hpp"
+#include "muscle_deformation/core/scene/joint_trajectory.hpp"
 
 #include "test_helpers.hpp"
 

@@ -1,11 +1,11 @@
 // Local/global implicit mass-spring solver (Liu et al. 2013) with the Projective Dynamics volume term, on small
 // analytic systems.
-#include "muscle_deformation/core/local_global_solver.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/spring_layout.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/core/model/spring_layout.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
 

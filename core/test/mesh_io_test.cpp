@@ -1,5 +1,5 @@
 // Specifications of the mesh and polyline loaders: what they read, and how they refuse what they cannot.
-#include "muscle_deformation/core/mesh_io.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
 
 #include "test_helpers.hpp"
 

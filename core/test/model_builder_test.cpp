@@ -1,9 +1,9 @@
 // Building the mass-spring system from muscles and bones, and moving it with the bones.
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/point_index.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/solver.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // PoseStream: warm for any smooth motion however far apart two solved poses are, cold only at a discontinuity.
-#include "muscle_deformation/core/pose_stream.hpp"
+#include "muscle_deformation/core/pipeline/pose_stream.hpp"
 
 #include <gtest/gtest.h>
 

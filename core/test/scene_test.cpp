@@ -1,7 +1,7 @@
 // Specifications of scene loading: URDF skeleton and forward kinematics, the scene YAML, and the bundled scene.
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
-#include "muscle_deformation/core/mesh_io.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
 
 #include "test_helpers.hpp"
 

@@ -1,6 +1,6 @@
 // The whole core pipeline: model, collision and solver behind MuscleSimulation.
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <gtest/gtest.h>
 

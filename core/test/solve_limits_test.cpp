@@ -1,8 +1,8 @@
 // Limits every solve obeys whatever its stopping rule (wall-time ceiling, cancellation), the meaning of `converged`,
 // and the robust strain percentile.
-#include "muscle_deformation/core/local_global_solver.hpp"
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
 #include "test_helpers.hpp"
 

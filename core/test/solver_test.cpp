@@ -1,6 +1,6 @@
 // Damped Verlet solver on small analytic systems.
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/solver.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
 #include "test_helpers.hpp"
 

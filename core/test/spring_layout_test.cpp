@@ -1,5 +1,5 @@
 // Spring layouts on small grids: expected counts, no duplicates, no self springs.
-#include "muscle_deformation/core/spring_layout.hpp"
+#include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include <gtest/gtest.h>
 

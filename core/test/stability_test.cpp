@@ -6,8 +6,8 @@
 // that made things worse than doing nothing, which is what divergence or a bad recovery would leave.
 // Penetration bound: no particle sphere may sink into a bone sphere deeper than the median particle sphere radius;
 // deeper means its centre is inside the bone, i.e. the particle has tunnelled.
-#include "muscle_deformation/core/simulation.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
 

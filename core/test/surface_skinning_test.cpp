@@ -1,10 +1,10 @@
 // Specifications of the surface skinning: affine motions of the particles move the surface exactly, rest gives rest,
 // mean value coordinates behave inside, outside and on a cage, and open surfaces are refused.
-#include "muscle_deformation/core/surface_skinning.hpp"
+#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 
-#include "muscle_deformation/core/model_builder.hpp"
-#include "muscle_deformation/core/rigid_pretransform.hpp"
-#include "muscle_deformation/core/synthetic_scene.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
 

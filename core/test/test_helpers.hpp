@@ -2,7 +2,7 @@
 #pragma once
 
 #include "muscle_deformation/core/geometry.hpp"
-#include "muscle_deformation/core/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // ~deform_pose of a running muscle_deformation_node (started by deform_service.test with a real roscore).
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <muscle_deformation/DeformPose.h>
 

@@ -3,7 +3,7 @@
 // ceiling, and warm starts continue only the same caller's nearby previous answer.
 #include "node_test_helpers.hpp"
 
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <muscle_deformation/DeformPose.h>
 #include <muscle_deformation/DeformationStats.h>

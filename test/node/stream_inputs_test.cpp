@@ -3,7 +3,7 @@
 // (no robot_state_publisher), so it controls which transforms exist.
 #include "node_test_helpers.hpp"
 
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <gtest/gtest.h>
 #include <ros/ros.h>

@@ -1,6 +1,6 @@
 // A running muscle_deformation_node given an unstable time step (unstable_step.test): every frame it publishes is
 // finite, and it says that it recovered from divergence.
-#include "muscle_deformation/core/scene.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
 
 #include <muscle_deformation/DeformPose.h>
 #include <muscle_deformation/DeformationStats.h>

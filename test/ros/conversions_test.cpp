@@ -1,5 +1,5 @@
 // The converters between core results and ROS messages, without a roscore.
-#include "muscle_deformation/core/model_builder.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/node/conversions.hpp"
 
 #include <gtest/gtest.h>
@@ -78,7 +78,7 @@ TEST(Conversions, JointStatesNameTheirProblem) {
 }
 
 TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) {
-  node::PipelineFrame frame;
+  md::PipelineFrame frame;
   frame.solve.solve.iterations = 30;
   frame.solve.solve.stopping_rule_met = true;  // the iterations rule ran its count
   frame.solve.solve.converged = false;

@@ -1,10 +1,10 @@
 // The one place where core types meet ROS messages (as grid_map's GridMapRosConverter): free functions, no state.
 #pragma once
 
-#include "muscle_deformation/core/mass_spring_system.hpp"
-#include "muscle_deformation/core/scene.hpp"
-#include "muscle_deformation/core/surface_skinning.hpp"
-#include "muscle_deformation/node/deformation_pipeline.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
 #include <muscle_deformation/DeformationStats.h>
 #include <muscle_deformation/MuscleSurfaces.h>

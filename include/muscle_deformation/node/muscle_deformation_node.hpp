@@ -8,9 +8,9 @@
 // diagnostics. Every solve is bounded in time (~max_solve_time_s) and ends within an iteration at shutdown.
 #pragma once
 
-#include "muscle_deformation/core/pose_stream.hpp"
-#include "muscle_deformation/core/scene.hpp"
-#include "muscle_deformation/node/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/node/parameters.hpp"
 
 #include <muscle_deformation/DeformPose.h>

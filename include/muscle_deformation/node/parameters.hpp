@@ -1,8 +1,8 @@
 // The node's private parameters (documented with units in config/muscle_deformation.yaml) read into plain settings.
 #pragma once
 
-#include "muscle_deformation/core/pose_stream.hpp"
-#include "muscle_deformation/node/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
 #include <ros/node_handle.h>
 

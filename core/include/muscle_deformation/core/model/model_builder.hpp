@@ -1,0 +1,68 @@
+// Building the mass-spring system of a set of muscles around a set of bones (pre-processing of thesis 4.4.2).
+#pragma once
+
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/model/spring_layout.hpp"
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+struct ModelSettings {
+  int particles_per_fibre = 20;
+  std::uint32_t sampling_seed = 1;
+  SpringLayout spring_layout = SpringLayout::nearest_neighbours;
+  int nearest_neighbours = 18;             // thesis: 15-20
+  double attachment_distance_m = 0.002;    // particles closer than this to a bone surface are fixed to it
+  bool fix_fibre_ends = true;              // first and last particle of every fibre fixed to the nearest bone
+  double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
+  double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
+  double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
+                                           // closest probe of some surface vertex for a boundary fibre
+                                           // (0: every fibre, so every particle collides; to measure
+                                           // what the seeds' boundary-only collision saves)
+};
+
+// Invalid settings or input (e.g. a muscle with no usable fibre); the message names the muscle and the problem.
+class ModelError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct MuscleBuildSummary {
+  std::string name;
+  int fibres = 0;
+  int skipped_fibres = 0;   // too short or non-finite, left out
+  int particles = 0;
+  int boundary_particles = 0;
+  int fixed_particles = 0;
+  int springs = 0;
+  int dropped_springs = 0;  // joined coincident particles (zero rest length)
+  double mean_radius_m = 0; // mean collision sphere radius of the boundary particles
+  double volume_m3 = 0;
+};
+
+struct ModelBuildReport {
+  std::vector<MuscleBuildSummary> muscles;
+  std::vector<std::string> warnings;
+  double build_ms = 0;
+};
+
+// Throws ModelError on invalid settings or unusable input. Bones may be empty (fibre ends are then fixed in space).
+// Boundary particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
+MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
+                                       const ModelSettings& settings, ModelBuildReport* report = nullptr);
+
+// A bare system from given particles and springs (no fibres, no bones), for tests and small analytic set-ups:
+// uniform mass, stiffness = material / rest length, no particle fixed or boundary, zero radius.
+MassSpringSystem systemFromParticles(const Eigen::Matrix3Xd& positions, const ParticlePairs& springs,
+                                     double particle_mass_kg, double spring_material_n);
+
+// Checks settings; returns an empty string when valid, otherwise what is wrong.
+std::string validate(const ModelSettings& settings);
+
+}  // namespace muscle_deformation

@@ -1,0 +1,79 @@
+// One frame of the product: solve the mass-spring system for a pose, then (when someone needs
+// them) skin the muscle surfaces and measure their fidelity. Plain C++ on top of the core (no ROS types), so the
+// node's streaming and service solves share it and tests drive it directly.
+#pragma once
+
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+struct PipelineSettings {
+  SimulationSettings simulation;
+  SkinningSettings skinning;
+  bool skin_surfaces = true;     // precompute surface skinning (needed for ~surfaces and the surface metrics)
+  bool measure_fidelity = true;  // precompute the volume / surface-in-bone metrics
+};
+
+struct PipelineFrame {
+  FrameStats solve;
+  BoneTransforms bone_transforms;   // indexed by Bone::id
+  bool has_surfaces = false;
+  std::vector<Vertices> surfaces;   // per muscle, when has_surfaces
+  double skinning_ms = 0;
+  bool has_metrics = false;
+  SceneMetrics metrics;             // when has_metrics
+  double metrics_ms = 0;
+};
+
+class DeformationPipeline {
+ public:
+  // Builds the simulation (throws ModelError / std::invalid_argument on bad settings or input). Skinning and metrics
+  // that cannot be set up (e.g. an open surface) are disabled with a reason (skinningProblem(), metricsProblem())
+  // rather than failing: the particles and fibres are still useful.
+  DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
+                      std::vector<Bone> bones, const PipelineSettings& settings);
+
+  // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
+  const PipelineFrame& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
+  void reset() { simulation_->reset(); }
+  // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits) {
+    simulation_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
+  }
+
+  const MuscleSimulation& simulation() const { return *simulation_; }
+  const std::vector<MuscleDescription>& descriptions() const { return descriptions_; }
+  const PipelineSettings& settings() const { return settings_; }
+  const PipelineFrame& lastFrame() const { return frame_; }
+  const SurfaceSkinning* skinning() const { return skinning_.get(); }
+  const DeformationMetrics* metrics() const { return metrics_.get(); }
+  const std::string& skinningProblem() const { return skinning_problem_; }
+  const std::string& metricsProblem() const { return metrics_problem_; }
+  double skinningSetupMs() const { return skinning_setup_ms_; }
+  double metricsSetupMs() const { return metrics_setup_ms_; }
+
+  // Heap bytes of the model (mass-spring arrays, surface weights); an estimate for the startup log.
+  std::size_t modelBytes() const;
+  // One line per quantity for the startup log: muscles, particles, springs, spheres, memory, build time.
+  std::string describe() const;
+
+ private:
+  std::vector<MuscleDescription> descriptions_;
+  PipelineSettings settings_;
+  std::unique_ptr<MuscleSimulation> simulation_;
+  std::unique_ptr<SurfaceSkinning> skinning_;
+  std::unique_ptr<DeformationMetrics> metrics_;
+  std::string skinning_problem_, metrics_problem_;
+  double skinning_setup_ms_ = 0, metrics_setup_ms_ = 0;
+  PipelineFrame frame_;
+};
+
+}  // namespace muscle_deformation

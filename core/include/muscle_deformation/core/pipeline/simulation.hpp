@@ -1,0 +1,78 @@
+// One way through the core: muscles and bones in, a pose in, deformed particles and statistics out.
+//
+//   MuscleSimulation simulation(muscles, bones, settings);   // builds the MSS, radii, bone spheres
+//   FrameStats stats = simulation.solve(pose, StartMode::warm);
+//   simulation.state().position  /  fibrePolylines(simulation.system(), simulation.state().position)
+#pragma once
+
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/solvers/solver_factory.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace muscle_deformation {
+
+struct SimulationSettings {
+  ModelSettings model;
+  SolverKind solver_kind = SolverKind::verlet;  // which solver MuscleSimulation runs
+  SolverSettings solver;                        // for SolverKind::verlet
+  LocalGlobalSettings local_global;             // for SolverKind::local_global
+  CollisionSettings collision;
+  bool collisions = true;  // false: the MSS alone (for comparisons)
+};
+
+enum class StartMode {
+  cold,  // from the rest shape moved by the rigid pre-transform (the seeds: every pose independent)
+  warm,  // from the previous result moved with the bones' motion since the previous pose (cold if there is none)
+};
+
+struct FrameStats {
+  SolveStats solve;          // iterations, per-phase times, spring deviation, strain
+  CollisionStats collision;  // contacts and remaining penetration after the last iteration
+  bool warm_started = false;
+  bool finite = true;        // every particle position is finite (always, unless the rest shape itself is not)
+  // The solve left non-finite positions despite the solver's own recovery; the state is the rigid pre-transform.
+  bool fell_back_to_pretransform = false;
+};
+
+class MuscleSimulation {
+ public:
+  // Throws ModelError (invalid settings or input) or std::invalid_argument (invalid solver/collision settings).
+  MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings);
+
+  FrameStats solve(const Pose& pose, StartMode start);
+  void reset();  // forget the previous result: the next solve starts cold
+  // Changes how later solves stop, for whichever solver runs (no rebuild): rule, iteration cap, tolerances, limits.
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits);
+
+  const MassSpringSystem& system() const { return system_; }
+  const ParticleState& state() const { return state_; }
+  const std::vector<Muscle>& muscles() const { return muscles_; }
+  const std::vector<Bone>& bones() const { return bones_; }
+  const ModelBuildReport& buildReport() const { return build_report_; }
+  const SimulationSettings& settings() const { return settings_; }
+  const CollisionWorld* collisionWorld() const { return collision_.get(); }
+  // Sphere radii shrunk at build time so that the rest pose is free of contacts (clearRestOverlaps).
+  const RestOverlapSummary& restOverlaps() const { return rest_overlaps_; }
+
+ private:
+  std::vector<Muscle> muscles_;
+  std::vector<Bone> bones_;
+  SimulationSettings settings_;
+  ModelBuildReport build_report_;
+  RestOverlapSummary rest_overlaps_;
+  MassSpringSystem system_;
+  std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
+  std::unique_ptr<CollisionWorld> collision_;
+  ParticleState state_;
+  BoneTransforms previous_transforms_;
+  bool has_previous_ = false;
+};
+
+}  // namespace muscle_deformation

@@ -1,0 +1,157 @@
+// Loading a scene: the skeleton from a URDF (bones = links with <collision> meshes) and the muscles from a scene YAML
+// (config/scenes/*.yaml). ROS-free: the URDF arrives as a string (the node reads robot_description), and mesh URIs
+// (package://, file://, relative paths) are turned into file paths by a resolver the caller supplies.
+#pragma once
+
+#include "muscle_deformation/core/model/model.hpp"
+
+#include <Eigen/Geometry>
+
+#include <array>
+#include <functional>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+// Any problem with the scene files: the message names the file (and line where known) and what is wrong.
+class SceneError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// ---------------------------------------------------------------------------------------------------------------
+// Skeleton (URDF)
+
+struct CollisionMeshRef {
+  std::string uri;                                               // as written in the URDF
+  Eigen::Vector3d scale = Eigen::Vector3d::Ones();               // <mesh scale="...">
+  Eigen::Isometry3d origin = Eigen::Isometry3d::Identity();      // <collision><origin>, in the link frame
+};
+
+struct SkeletonLink {
+  std::string name;
+  std::string parent_link;   // empty for the root
+  std::string parent_joint;  // empty for the root
+  std::vector<CollisionMeshRef> collision_meshes;
+};
+
+struct SkeletonJoint {
+  std::string name;
+  std::string type;  // revolute, continuous, prismatic, fixed, floating, planar
+  std::string parent_link, child_link;
+  Eigen::Isometry3d origin = Eigen::Isometry3d::Identity();  // parent link frame -> joint frame at zero
+  Eigen::Vector3d axis = Eigen::Vector3d::UnitX();           // unit, in the joint frame
+  double lower = 0, upper = 0;                               // limits (rad or m); equal = no limit given
+  // <mimic>: value = multiplier * value(mimicked) + offset
+  std::string mimic_joint;
+  double mimic_multiplier = 1, mimic_offset = 0;
+};
+
+using JointValues = std::map<std::string, double>;  // joint name -> position (rad or m); missing joints are 0
+
+class Skeleton {
+ public:
+  // Parses URDF XML (urdfdom). Throws SceneError naming `source_name` (a file path or "robot_description").
+  static Skeleton fromUrdfString(const std::string& xml, const std::string& source_name);
+  static Skeleton fromUrdfFile(const std::string& path);
+
+  const std::string& rootLink() const { return root_; }
+  const std::vector<SkeletonLink>& links() const { return links_; }
+  const std::vector<SkeletonJoint>& joints() const { return joints_; }
+  const SkeletonLink* link(const std::string& name) const;
+  const SkeletonJoint* joint(const std::string& name) const;
+  // Names of joints that move (not fixed), in URDF order.
+  std::vector<std::string> movableJointNames() const;
+
+  // Forward kinematics: every link's pose in the root frame. Throws SceneError for an unknown joint name or a
+  // non-finite value; a value outside the joint's limits is accepted (the skeleton has no actuators) but reported in
+  // `warnings` if given.
+  std::map<std::string, Eigen::Isometry3d> linkPoses(const JointValues& values,
+                                                     std::vector<std::string>* warnings = nullptr) const;
+
+ private:
+  std::string root_;
+  std::vector<SkeletonLink> links_;
+  std::vector<SkeletonJoint> joints_;
+};
+
+// Turns a mesh URI into a readable file path; throws SceneError if it cannot.
+using UriResolver = std::function<std::string(const std::string& uri)>;
+// package://<pkg>/rest -> package_roots[pkg]/rest; file:///abs -> /abs; a relative path -> base_directory/path.
+UriResolver makeUriResolver(std::map<std::string, std::string> package_roots, std::string base_directory);
+
+// ---------------------------------------------------------------------------------------------------------------
+// Scene YAML
+
+struct MuscleDescription {
+  std::string name;
+  std::string surface_file;  // as written (relative to the package root unless absolute)
+  std::string fibre_file;
+  std::string origin_bone, insertion_bone;  // URDF link names
+  std::array<float, 4> colour{0.8f, 0.2f, 0.2f, 1.0f};  // RGBA 0-1
+  std::vector<std::string> tags;                         // e.g. thigh13, hip
+};
+
+struct SceneDescription {
+  std::string path;        // the YAML file
+  std::string urdf_file;   // `urdf:` key, relative to the package root
+  std::string frame;       // `frame:` key: the link whose frame the muscle files use (the fixed frame at zero)
+  std::vector<MuscleDescription> muscles;
+};
+
+// Reads the YAML; every missing or malformed key is a SceneError naming the file and the line.
+SceneDescription loadSceneDescription(const std::string& yaml_path);
+
+// The muscles to simulate: `selection` entries are muscle names or tags; empty = all. Unknown names are an error
+// naming them.
+std::vector<MuscleDescription> selectMuscles(const SceneDescription& scene, const std::vector<std::string>& selection);
+
+// ---------------------------------------------------------------------------------------------------------------
+// Everything loaded, in the scene frame of the zero configuration (metres)
+
+struct Scene {
+  Skeleton skeleton;
+  std::vector<MuscleDescription> muscle_descriptions;  // same order as muscles
+  std::vector<Muscle> muscles;                         // surfaces checked closed; fibres loaded
+  std::vector<Bone> bones;  // one per link with collision meshes (all its meshes merged), placed at zero config
+  std::map<std::string, Eigen::Isometry3d> rest_link_poses;  // link poses at zero configuration, scene frame
+};
+
+// Loads the selected muscles and every bone with collision meshes. `package_root` resolves relative scene paths;
+// package:// and file:// URIs in the scene go through `resolve_mesh`. Throws SceneError (or LoadError from the mesh
+// loaders, naming the file) on any missing or broken input: among others a scene without bones (no link with a
+// <collision> mesh), a muscle attached to a link without one, and fibres further than kFibreOutsideToleranceM outside
+// their muscle's surface.
+Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
+                const std::string& package_root, const std::vector<std::string>& selection = {});
+
+// How far a muscle's fibres stray outside its closed surface: the largest distance of a fibre point outside it (0
+// when every point is inside), and which point that is.
+struct FibreExcursion {
+  double max_outside_m = 0;
+  int fibre = -1, point = -1;  // -1: no point outside
+};
+FibreExcursion fibreExcursion(const Muscle& muscle);
+
+// loadScene refuses fibres that leave their muscle's surface by more than this (m): fibres traced through a segmented
+// volume end on or just outside its surface, while a fibre file of another muscle, in other units or in another frame
+// lies centimetres away.
+constexpr double kFibreOutsideToleranceM = 0.005;
+
+// A scene path (`surface:`, `fibres:`, `urdf:`) as a file path: absolute paths stay, others are relative to
+// package_root.
+std::string resolveScenePath(const std::string& path, const std::string& package_root);
+
+// Only the bones of loadScene (one per link with collision meshes, ids = index, rest pose in the link `frame` of the
+// zero configuration), e.g. for tools that run before fibre files exist. Throws SceneError for an unknown frame.
+std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve_mesh, const std::string& frame);
+
+// The pose of the bones (rest -> current, scene frame) for link poses given in the scene frame, e.g. from tf or
+// from Skeleton::linkPoses: T_bone = T_link(current) * T_link(rest)^-1.
+Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses);
+
+}  // namespace muscle_deformation

@@ -1,0 +1,33 @@
+// The one interface the pipeline drives a solver of the mass-spring system through. A new solver implements it and
+// registers in solver_factory.cpp; MuscleSimulation and everything above it stay unchanged.
+#pragma once
+
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/solvers/solve_control.hpp"
+
+#include <string>
+
+namespace muscle_deformation {
+
+enum class SolverKind {
+  verlet,        // damped Verlet (verlet_solver.hpp)
+  local_global,  // local/global projective iterations (local_global_solver.hpp)
+};
+std::string toString(SolverKind kind);
+// Accepts "verlet", "local_global"; throws std::invalid_argument otherwise.
+SolverKind solverKindFromString(const std::string& name);
+
+class SoftBodySolver {
+ public:
+  virtual ~SoftBodySolver() = default;
+
+  virtual SolverKind kind() const = 0;
+  // Advances `state` until the stopping rule or a SolveLimits bound is met; `after_update` (the collision stage) runs
+  // after every update. Fixed particles keep the positions `state` holds on entry (the pose).
+  virtual SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) = 0;
+  // Changes how later solves stop (rule, iteration cap, tolerances, limits) without rebuilding anything.
+  virtual void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                           double time_budget_ms, const SolveLimits& limits) = 0;
+};
+
+}  // namespace muscle_deformation

@@ -1,0 +1,113 @@
+// Fidelity of a deformed scene: muscle volume kept, muscle surface inside bones, fibre length change.
+//
+// Volume and penetration are measured on the skinned muscle surfaces (what users see); the penetration figure uses
+// an exact inside test on each bone's triangle mesh, independent of the collision stage's sphere proxies.
+#pragma once
+
+#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+
+#include <cstdint>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+// Input unusable for measuring (open muscle or bone surface, mismatched sizes); the message names the object.
+class MetricsError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Exact inside test for a closed triangle surface: parity of the crossings of a ray in +z. The ray is tested against
+// each triangle's projection onto the xy plane with edge tests evaluated in one canonical direction per edge and
+// ties broken by a fixed infinitesimal shift of the ray, so a ray through an edge or a vertex is counted exactly once
+// by exactly one triangle of the fan around it. Needs a closed surface (no holes); the winding may be inconsistent.
+class ClosedSurfaceInsideTest {
+ public:
+  explicit ClosedSurfaceInsideTest(const TriangleMesh& surface, const std::string& name = "surface");
+  ~ClosedSurfaceInsideTest();
+  ClosedSurfaceInsideTest(ClosedSurfaceInsideTest&&) noexcept;
+  ClosedSurfaceInsideTest& operator=(ClosedSurfaceInsideTest&&) noexcept;
+
+  // Points exactly on the surface may go either way.
+  bool contains(const Eigen::Vector3d& point) const;
+  // Exact distance from the point to the surface (metres).
+  double distanceToSurface(const Eigen::Vector3d& point) const;
+  const AlignedBox& bounds() const { return bounds_; }
+
+ private:
+  int crossings(const Eigen::Vector3d& point) const;
+
+  TriangleMesh surface_;
+  AlignedBox bounds_;
+  // Uniform grid over the xy extent: each cell lists the triangles whose xy bounding box overlaps it.
+  int cells_x_ = 1, cells_y_ = 1;
+  double cell_size_x_ = 1, cell_size_y_ = 1;
+  std::vector<std::int32_t> cell_begin_;
+  std::vector<std::int32_t> cell_triangles_;
+  std::unique_ptr<SurfaceDistance> distance_;
+};
+
+struct MuscleMetrics {
+  std::string name;
+  double rest_volume_m3 = 0;
+  double volume_m3 = 0;
+  double volume_error_pct = 0;          // (volume - rest) / rest * 100, signed
+  int vertices_inside_bone = 0;         // surface vertices inside any bone
+  double max_inside_bone_depth_m = 0;   // largest distance from such a vertex to that bone's surface
+  std::string deepest_bone;             // the bone of that vertex ("" when none)
+  int fibres = 0;
+  double fibre_length_change_mean_pct = 0;  // mean over fibres of (length / rest length - 1) * 100
+  double fibre_length_change_min_pct = 0;   // range over fibres
+  double fibre_length_change_max_pct = 0;
+};
+
+struct SceneMetrics {
+  std::vector<MuscleMetrics> muscles;
+  double volume_error_mean_pct = 0;    // mean over muscles of |volume error|
+  double volume_error_max_pct = 0;     // max over muscles of |volume error|
+  int vertices_inside_bone = 0;        // all muscles
+  double max_inside_bone_depth_m = 0;  // all muscles
+  double compute_ms = 0;
+};
+
+class DeformationMetrics {
+ public:
+  // `muscles` are the muscles the system was built from (same order), with closed rest surfaces; `bones` the scene's
+  // bones at rest (closed surfaces). Throws MetricsError naming the open surface.
+  DeformationMetrics(const std::vector<Bone>& bones, const std::vector<Muscle>& muscles,
+                     const MassSpringSystem& system);
+
+  // Per solve: surfaces[m] are muscle m's deformed surface vertices (e.g. from SurfaceSkinning::update), positions
+  // the particles, transforms the bones' pose (indexed by Bone::id; missing bones stay at rest).
+  SceneMetrics measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
+                       const BoneTransforms& bone_transforms) const;
+
+  // Pieces, usable alone.
+  // Rest volume of muscle m (positive whatever its winding).
+  double restVolume(int muscle) const { return rest_volume_[muscle]; }
+  // Length of every fibre now over its length at rest, all muscles in particle order (as fibrePolylines).
+  Eigen::VectorXd fibreLengthRatios(const Eigen::Matrix3Xd& particle_positions) const;
+  // Inside test of bone b at rest; to test a posed bone, map the point back with the inverse bone transform.
+  const ClosedSurfaceInsideTest& boneInsideTest(int bone) const { return bone_tests_[bone]; }
+
+ private:
+  std::vector<std::string> bone_names_;
+  std::vector<ClosedSurfaceInsideTest> bone_tests_;
+  std::vector<std::string> muscle_names_;
+  std::vector<Triangles> muscle_triangles_;
+  std::vector<double> rest_volume_;
+  std::vector<double> volume_sign_;  // -1 for muscles whose triangles wind inwards
+  // Fibres: particle ranges [fibre_begin_[f], fibre_begin_[f + 1]), the muscle of each, rest lengths.
+  std::vector<Eigen::Index> fibre_begin_;
+  std::vector<int> fibre_muscle_;
+  Eigen::VectorXd fibre_rest_length_;
+};
+
+}  // namespace muscle_deformation

@@ -1,0 +1,153 @@
+// Muscle surfaces that follow the particles (thesis 4.4.4, GRAPP 3.2).
+//
+// The triangle surface of a muscle has no springs of its own: each surface vertex is tied to particles once, at
+// rest (precompute), and every frame its position is recomputed from the current particle positions (update).
+// Three ways of tying a vertex to particles are offered as a setting:
+//   nearest_average  the thesis baseline: the vertex is rigidly pre-transformed like its N closest particles, then
+//                    moved by their average displacement since their own pre-transform;
+//   mean_value       mean value coordinates (Ju, Schaefer, Warren 2005) of the vertex with respect to a closed
+//                    triangle cage whose corners are boundary particles (the GRAPP 2014 method);
+//   embedded         barycentric coordinates of the vertex in a Delaunay tetrahedron of the muscle's particles
+//                    (SOFA-style embedding), extrapolated from a nearby tetrahedron for vertices outside.
+// mean_value and embedded make every vertex a fixed affine combination of particles (weights sum to 1), so any
+// affine motion of the particles (rigid motion, uniform scaling) moves the surface by exactly that motion.
+#pragma once
+
+#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+
+#include <Eigen/Sparse>
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+enum class SkinningMethod { nearest_average, mean_value, embedded };
+
+std::string toString(SkinningMethod method);
+SkinningMethod skinningMethodFromString(const std::string& name);  // throws std::invalid_argument
+
+// How the mean_value cage is triangulated from the boundary particles.
+enum class CageKind {
+  fibre_tube,   // the ring of outermost boundary fibres joined sample by sample, ends closed by fans: follows a muscle
+                // that is curved along its length (falls back to convex_hull when fibres differ in sample count)
+  convex_hull,  // convex hull of the boundary particles (qhull): always closed, but bridges concavities and drops
+                // particles that lie on flat parts of the hull
+};
+
+std::string toString(CageKind kind);
+CageKind cageKindFromString(const std::string& name);  // throws std::invalid_argument
+
+struct SkinningSettings {
+  SkinningMethod method = SkinningMethod::nearest_average;  // chosen by measurement, see docs/surface_skinning.md
+  int nearest_particles = 8;                           // nearest_average: N (thesis tried 3 and 8)
+  CageKind cage = CageKind::convex_hull;               // mean_value; measured better than fibre_tube (docs)
+  int embedded_candidate_particles = 8;                // embedded: tetrahedra around this many nearest particles
+                                                       // are searched for the one containing the vertex
+};
+
+// Invalid input for skinning (open muscle surface, too few particles, degenerate cage); names the muscle.
+class SkinningError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// What the precompute found; for judging how well-behaved the coordinates are.
+struct SkinningDiagnostics {
+  int cage_vertices = 0;          // mean_value: particles that are cage corners
+  int cage_triangles = 0;
+  CageKind cage_kind = CageKind::fibre_tube;  // the cage actually built (after a fallback)
+  int tetrahedra = 0;             // embedded
+  int vertices_outside = 0;       // outside the cage (mean_value) / outside every tetrahedron (embedded)
+  int vertices_on_cage = 0;       // mean_value: on a cage triangle, given that triangle's barycentric coordinates
+  double max_abs_weight_sum = 0;  // max over vertices of sum |w|; 1 means a convex combination, larger means
+                                  // extrapolation with negative weights (amplifies particle noise by this factor)
+  double max_rest_residual_m = 0; // max |vertex - sum w p_rest|: how exactly the coordinates reproduce the rest surface
+  double precompute_ms = 0;
+};
+
+// A closed triangle cage whose corners are particles: mesh vertex k is particle `particle[k]` (muscle-local index).
+struct ParticleCage {
+  TriangleMesh mesh;
+  std::vector<std::int32_t> particle;
+  CageKind kind = CageKind::fibre_tube;
+};
+
+// Cage of muscle `muscle` of `system` at rest. Throws SkinningError when no closed cage can be built.
+ParticleCage buildParticleCage(const MassSpringSystem& system, int muscle, CageKind kind);
+
+// Mean value coordinates of `point` with respect to the closed, consistently wound triangle mesh `cage`: one weight
+// per cage vertex, summing to 1, with sum w_k v_k = point. Defined inside and outside the cage; on a cage triangle
+// they are that triangle's barycentric coordinates. `on_cage` (optional) reports that case.
+Eigen::VectorXd meanValueCoordinates(const TriangleMesh& cage, const Eigen::Vector3d& point, bool* on_cage = nullptr);
+
+// The skin of one muscle.
+class MuscleSkin {
+ public:
+  using Weights = Eigen::SparseMatrix<double, Eigen::RowMajor, std::int32_t>;
+
+  // Precompute at rest from the system's rest particles and the muscle's closed rest surface. Throws SkinningError.
+  MuscleSkin(const MassSpringSystem& system, int muscle, const TriangleMesh& rest_surface,
+             const SkinningSettings& settings);
+
+  // Deformed surface vertices from the current positions of all particles of the system. `bone_transforms` (indexed
+  // by Bone::id, as for rigidPretransform) is read by nearest_average only; the other methods accept an empty list.
+  // Allocates nothing when `surface` already has 3 x vertexCount() entries.
+  void update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
+              Vertices& surface) const;
+
+  SkinningMethod method() const { return method_; }
+  int muscle() const { return muscle_; }
+  Eigen::Index vertexCount() const { return weights_.rows(); }
+  const Triangles& triangles() const { return triangles_; }
+  // Rows: surface vertices; columns: the muscle's particles (muscle-local index, particle - muscle_begin[muscle]).
+  // Every row sums to 1 for mean_value and embedded; nearest_average holds 1/N on the N closest particles.
+  const Weights& weights() const { return weights_; }
+  const ParticleCage& cage() const { return cage_; }  // mean_value only (empty otherwise)
+  const SkinningDiagnostics& diagnostics() const { return diagnostics_; }
+
+ private:
+  void precomputeMeanValue(const Eigen::Matrix3Xd& rest_particles, const Vertices& rest_vertices,
+                           const MassSpringSystem& system, CageKind cage_kind);
+  void precomputeEmbedded(const Eigen::Matrix3Xd& rest_particles, const Vertices& rest_vertices, int candidates);
+  void precomputeNearestAverage(const Eigen::Matrix3Xd& rest_particles, const Vertices& rest_vertices,
+                                const MassSpringSystem& system, int nearest);
+
+  SkinningMethod method_;
+  int muscle_ = 0;
+  Eigen::Index particle_begin_ = 0, particle_count_ = 0;
+  Triangles triangles_;
+  Weights weights_;
+  ParticleCage cage_;
+  SkinningDiagnostics diagnostics_;
+  // nearest_average: vertex = sum_j w_j x_j + sum_b R_b g_b over the bones b its particles blend; the translations of
+  // the bones cancel between the vertex's pre-transform and its particles' pre-transforms (see the .cpp).
+  std::vector<std::int32_t> rotation_begin_;     // per vertex, into the two arrays below; size vertices + 1
+  std::vector<std::int32_t> rotation_bone_;      // bone id, kNoBone for particles that follow no bone
+  std::vector<Eigen::Vector3d> rotation_offset_;  // g_b, metres
+};
+
+// Skins of all muscles of a system, in muscle order.
+class SurfaceSkinning {
+ public:
+  // `muscles` are the muscles the system was built from (same order). Throws SkinningError.
+  SurfaceSkinning(const MassSpringSystem& system, const std::vector<Muscle>& muscles, const SkinningSettings& settings);
+
+  // Per frame: fills surfaces[m] for every muscle; no allocation once `surfaces` has been filled before.
+  void update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
+              std::vector<Vertices>& surfaces) const;
+
+  const std::vector<MuscleSkin>& muscles() const { return skins_; }
+  const SkinningSettings& settings() const { return settings_; }
+
+ private:
+  SkinningSettings settings_;
+  std::vector<MuscleSkin> skins_;
+};
+
+}  // namespace muscle_deformation

@@ -1,0 +1,379 @@
+// The collision stage: muscle-muscle and muscle-bone sphere collision with the seeds' response (thesis 4.3).
+#include "muscle_deformation/core/collision/collision.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double millisecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+bool boxesOverlap(const AlignedBox& a, const AlignedBox& b, double margin = 0.0) {
+  if (a.empty() || b.empty()) return false;
+  return (a.min.array() - margin <= b.max.array()).all() && (b.min.array() <= a.max.array() + margin).all();
+}
+
+// Unit direction from b to a; coincident centres get a fixed axis so the response stays deterministic.
+Eigen::Vector3d separationDirection(const Eigen::Vector3d& a, const Eigen::Vector3d& b, double& distance) {
+  const Eigen::Vector3d v = a - b;
+  distance = v.norm();
+  if (distance > 0.0) return v / distance;
+  return Eigen::Vector3d::UnitX();
+}
+
+struct PenetrationSum {
+  int count = 0;
+  double max = 0, sum = 0;
+  void add(double depth) {
+    ++count;
+    max = std::max(max, depth);
+    sum += depth;
+  }
+  double mean() const { return count > 0 ? sum / count : 0.0; }
+};
+
+}  // namespace
+
+struct CollisionWorld::Impl {
+  const MassSpringSystem& system;
+  int muscle_count = 0;
+  int bone_count = 0;
+
+  // Muscle objects (broad-phase ids 0 .. muscle_count-1): the particle behind each sphere and current spheres.
+  std::vector<std::vector<std::int32_t>> sphere_particle;
+  std::vector<std::vector<std::uint8_t>> sphere_fixed;
+  std::vector<SphereSet> muscle_spheres;
+  std::vector<AlignedBox> muscle_box;
+  bool rebuild_muscle_hierarchies = false;  // set by a new pose, consumed by the next gather
+
+  // Bone objects (broad-phase ids muscle_count + b): fixed spheres, rest frame and current pose.
+  std::vector<std::string> bone_names;
+  std::vector<SphereSet> bone_rest;
+  std::vector<SphereSet> bone_world;
+  std::vector<AlignedBox> bone_box;
+  std::vector<Eigen::Isometry3d> bone_transform;
+
+  std::unique_ptr<BroadPhase> broad;
+  std::vector<SpherePair> pairs;
+  std::vector<int> muscle_ids;                  // broad-phase ids of the muscles: 0 .. muscle_count-1
+  std::vector<std::uint8_t> muscle_test_pair;   // muscle_count^2: bounds overlap this iteration
+  std::vector<ObjectSpherePair> muscle_pairs;
+
+  // Response accumulators, per particle; only touched entries are reset after each pass.
+  Eigen::Matrix3Xd displacement;
+  std::vector<std::int32_t> contact_count;
+  std::vector<std::int32_t> touched;
+
+  Impl(const MassSpringSystem& s, std::vector<SphereSet> bones, std::vector<std::string> names,
+       const CollisionSettings& settings)
+      : system(s), bone_names(std::move(names)), bone_rest(std::move(bones)) {
+    muscle_count = system.muscleCount();
+    bone_count = static_cast<int>(bone_rest.size());
+    const Eigen::Index n = system.particleCount();
+    if (system.radius.size() != n || static_cast<Eigen::Index>(system.is_boundary.size()) != n ||
+        static_cast<Eigen::Index>(system.is_fixed.size()) != n ||
+        static_cast<int>(system.muscle_begin.size()) != muscle_count + 1)
+      throw std::invalid_argument(
+          "CollisionWorld: the mass-spring system's radius, is_boundary, is_fixed or muscle_begin arrays do not match "
+          "its particle and muscle counts (call assignCollisionRadii after building the system)");
+    if (bone_names.empty()) {
+      for (int b = 0; b < bone_count; ++b) bone_names.push_back("bone " + std::to_string(b));
+    } else if (static_cast<int>(bone_names.size()) != bone_count) {
+      throw std::invalid_argument("CollisionWorld: bone name count differs from bone sphere set count");
+    }
+    broad = makeBroadPhase(settings);
+
+    sphere_particle.resize(static_cast<std::size_t>(muscle_count));
+    sphere_fixed.resize(static_cast<std::size_t>(muscle_count));
+    muscle_spheres.resize(static_cast<std::size_t>(muscle_count));
+    muscle_box.resize(static_cast<std::size_t>(muscle_count));
+    for (int m = 0; m < muscle_count; ++m) {
+      auto& particles = sphere_particle[static_cast<std::size_t>(m)];
+      for (std::int32_t p = system.muscle_begin[static_cast<std::size_t>(m)];
+           p < system.muscle_begin[static_cast<std::size_t>(m) + 1]; ++p)
+        if (system.is_boundary[static_cast<std::size_t>(p)] && system.radius[p] > 0.0) particles.push_back(p);
+      SphereSet& spheres = muscle_spheres[static_cast<std::size_t>(m)];
+      spheres.resize(static_cast<Eigen::Index>(particles.size()));
+      for (std::size_t k = 0; k < particles.size(); ++k) {
+        spheres.centre.col(static_cast<Eigen::Index>(k)) = system.rest_position.col(particles[k]);
+        spheres.radius[static_cast<Eigen::Index>(k)] = system.radius[particles[k]];
+        sphere_fixed[static_cast<std::size_t>(m)].push_back(system.is_fixed[static_cast<std::size_t>(particles[k])]);
+      }
+      broad->update(m, spheres, true);
+    }
+
+    bone_world = bone_rest;
+    bone_box.resize(static_cast<std::size_t>(bone_count));
+    bone_transform.assign(static_cast<std::size_t>(bone_count), Eigen::Isometry3d::Identity());
+    for (int b = 0; b < bone_count; ++b) {
+      if (bone_rest[static_cast<std::size_t>(b)].radius.size() != bone_rest[static_cast<std::size_t>(b)].size())
+        throw std::invalid_argument("CollisionWorld: bone '" + bone_names[static_cast<std::size_t>(b)] +
+                                    "' sphere set has different centre and radius counts");
+      bone_box[static_cast<std::size_t>(b)] = sphereBounds(bone_world[static_cast<std::size_t>(b)]);
+      broad->update(muscle_count + b, bone_world[static_cast<std::size_t>(b)], true);
+    }
+
+    for (int m = 0; m < muscle_count; ++m) muscle_ids.push_back(m);
+    muscle_test_pair.assign(static_cast<std::size_t>(muscle_count) * static_cast<std::size_t>(muscle_count), 0);
+    displacement = Eigen::Matrix3Xd::Zero(3, n);
+    contact_count.assign(static_cast<std::size_t>(n), 0);
+    touched.reserve(static_cast<std::size_t>(n));
+  }
+
+  void gatherMuscles(const ParticleState& state) {
+    if (state.position.cols() != system.particleCount())
+      throw std::invalid_argument("CollisionWorld: state has " + std::to_string(state.position.cols()) +
+                                  " particles, the system " + std::to_string(system.particleCount()));
+    for (int m = 0; m < muscle_count; ++m) {
+      const auto& particles = sphere_particle[static_cast<std::size_t>(m)];
+      SphereSet& spheres = muscle_spheres[static_cast<std::size_t>(m)];
+      AlignedBox box;
+      for (std::size_t k = 0; k < particles.size(); ++k) {
+        const Eigen::Index kk = static_cast<Eigen::Index>(k);
+        spheres.centre.col(kk) = state.position.col(particles[k]);
+        const double r = spheres.radius[kk];
+        box.min = box.min.cwiseMin((spheres.centre.col(kk).array() - r).matrix());
+        box.max = box.max.cwiseMax((spheres.centre.col(kk).array() + r).matrix());
+      }
+      muscle_box[static_cast<std::size_t>(m)] = box;
+      broad->update(m, spheres, rebuild_muscle_hierarchies);
+    }
+    rebuild_muscle_hierarchies = false;
+  }
+
+  // Muscle pairs whose sphere bounds overlap; the others cannot touch this iteration.
+  void findMusclePairs() {
+    const std::size_t n = static_cast<std::size_t>(muscle_count);
+    for (std::size_t a = 0; a < n; ++a)
+      for (std::size_t b = a + 1; b < n; ++b) muscle_test_pair[a * n + b] = boxesOverlap(muscle_box[a], muscle_box[b]);
+    broad->findPairsAmong(muscle_ids, muscle_test_pair, muscle_pairs);
+  }
+
+  bool boneReachesAnyMuscle(int b, double margin) const {
+    for (int m = 0; m < muscle_count; ++m)
+      if (boxesOverlap(bone_box[static_cast<std::size_t>(b)], muscle_box[static_cast<std::size_t>(m)], margin))
+        return true;
+    return false;
+  }
+
+  // For every bone within reach of some muscle and every muscle whose bounds overlap it, fills `pairs` with their
+  // overlapping spheres and calls visit(muscle, bone). Returns the number of bones skipped as out of reach.
+  template <class Visit>
+  int forEachMuscleBoneOverlap(double margin, bool skip_out_of_reach, Visit&& visit) {
+    int skipped = 0;
+    for (int b = 0; b < bone_count; ++b) {
+      if (skip_out_of_reach && !boneReachesAnyMuscle(b, margin)) {
+        ++skipped;
+        continue;
+      }
+      for (int m = 0; m < muscle_count; ++m) {
+        if (skip_out_of_reach &&
+            !boxesOverlap(bone_box[static_cast<std::size_t>(b)], muscle_box[static_cast<std::size_t>(m)]))
+          continue;
+        broad->findPairs(m, muscle_count + b, pairs);
+        visit(m, b);
+      }
+    }
+    return skipped;
+  }
+
+
+  void addDisplacement(std::int32_t particle, const Eigen::Vector3d& d) {
+    if (contact_count[static_cast<std::size_t>(particle)]++ == 0) touched.push_back(particle);
+    displacement.col(particle) += d;
+  }
+
+  // Seeds' response for one muscle-muscle pair; returns whether anything was moved.
+  bool respondMuscleMuscle(int a, int b, const SpherePair& pair) {
+    const std::size_t ua = static_cast<std::size_t>(a), ub = static_cast<std::size_t>(b);
+    const bool fixed_a = sphere_fixed[ua][static_cast<std::size_t>(pair.first)];
+    const bool fixed_b = sphere_fixed[ub][static_cast<std::size_t>(pair.second)];
+    if (fixed_a && fixed_b) return false;  // two attachments: neither may move
+    const SphereSet& sa = muscle_spheres[ua];
+    const SphereSet& sb = muscle_spheres[ub];
+    double distance = 0;
+    const Eigen::Vector3d dir = separationDirection(sa.centre.col(pair.first), sb.centre.col(pair.second), distance);
+    const double overlap = sa.radius[pair.first] + sb.radius[pair.second] - distance;
+    const std::int32_t pa = sphere_particle[ua][static_cast<std::size_t>(pair.first)];
+    const std::int32_t pb = sphere_particle[ub][static_cast<std::size_t>(pair.second)];
+    if (fixed_b) {
+      addDisplacement(pa, dir * overlap);
+    } else if (fixed_a) {
+      addDisplacement(pb, -dir * overlap);
+    } else {
+      addDisplacement(pa, dir * (0.5 * overlap));
+      addDisplacement(pb, -dir * (0.5 * overlap));
+    }
+    return true;
+  }
+
+  bool respondMuscleBone(int m, int b, const SpherePair& pair) {
+    const std::size_t um = static_cast<std::size_t>(m);
+    if (sphere_fixed[um][static_cast<std::size_t>(pair.first)]) return false;  // attachment against its bone
+    const SphereSet& sm = muscle_spheres[um];
+    const SphereSet& sb = bone_world[static_cast<std::size_t>(b)];
+    double distance = 0;
+    const Eigen::Vector3d dir = separationDirection(sm.centre.col(pair.first), sb.centre.col(pair.second), distance);
+    const double overlap = sm.radius[pair.first] + sb.radius[pair.second] - distance;
+    addDisplacement(sphere_particle[um][static_cast<std::size_t>(pair.first)], dir * overlap);
+    return true;
+  }
+
+  double penetration(const SphereSet& a, std::int32_t i, const SphereSet& b, std::int32_t j) const {
+    return a.radius[i] + b.radius[j] - (a.centre.col(i) - b.centre.col(j)).norm();
+  }
+};
+
+CollisionWorld::CollisionWorld(const MassSpringSystem& system, const std::vector<Bone>& bones,
+                               CollisionSettings settings)
+    : settings_(settings) {
+  std::vector<SphereSet> spheres;
+  std::vector<std::string> names;
+  spheres.reserve(bones.size());
+  for (const Bone& bone : bones) {
+    spheres.push_back(boneSpheresOneRing(bone.surface, settings_.bone_sphere_rule));
+    names.push_back(bone.name);
+  }
+  impl_ = std::make_unique<Impl>(system, std::move(spheres), std::move(names), settings_);
+  for (const SphereSet& s : impl_->bone_rest) bone_sphere_counts_.push_back(static_cast<int>(s.size()));
+}
+
+CollisionWorld::CollisionWorld(const MassSpringSystem& system, std::vector<SphereSet> bone_spheres_rest,
+                               CollisionSettings settings, std::vector<std::string> bone_names)
+    : settings_(settings) {
+  impl_ = std::make_unique<Impl>(system, std::move(bone_spheres_rest), std::move(bone_names), settings_);
+  for (const SphereSet& s : impl_->bone_rest) bone_sphere_counts_.push_back(static_cast<int>(s.size()));
+}
+
+CollisionWorld::~CollisionWorld() = default;
+
+void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per_bone_index) {
+  Impl& w = *impl_;
+  if (static_cast<int>(per_bone_index.size()) != w.bone_count)
+    throw std::invalid_argument("CollisionWorld::setBoneTransforms: " + std::to_string(per_bone_index.size()) +
+                                " transforms for " + std::to_string(w.bone_count) + " bones");
+  // A new pose starts a new solve: muscle hierarchies are rebuilt once from the pre-transformed particles and only
+  // refitted during the solve's iterations, as in the seeds (a refitted tree grows loose as the shape drifts).
+  w.rebuild_muscle_hierarchies = true;
+  for (int b = 0; b < w.bone_count; ++b) {
+    const std::size_t ub = static_cast<std::size_t>(b);
+    const Eigen::Isometry3d& t = per_bone_index[ub];
+    // Unchanged pose: keep the bone's hierarchy or grid (the seeds never update bone structures within a step).
+    if (t.matrix() == w.bone_transform[ub].matrix()) continue;
+    w.bone_transform[ub] = t;
+    w.bone_world[ub].centre = t * w.bone_rest[ub].centre;
+    w.bone_box[ub] = sphereBounds(w.bone_world[ub]);
+    w.broad->update(w.muscle_count + b, w.bone_world[ub], true);
+  }
+}
+
+void CollisionWorld::setPose(const Pose& pose) {
+  std::vector<Eigen::Isometry3d> transforms;
+  transforms.reserve(impl_->bone_names.size());
+  for (const std::string& name : impl_->bone_names) transforms.push_back(pose.transformOf(name));
+  setBoneTransforms(transforms);
+}
+
+int CollisionWorld::resolve(ParticleState& state) {
+  Impl& w = *impl_;
+  auto start = Clock::now();
+  w.gatherMuscles(state);
+  stats_.response_ms += millisecondsSince(start);
+
+  int contacts = 0, muscle_contacts = 0, bone_contacts = 0;
+  std::int64_t pairs_found = 0;
+
+  start = Clock::now();
+  w.findMusclePairs();
+  pairs_found += static_cast<std::int64_t>(w.muscle_pairs.size());
+  for (const ObjectSpherePair& p : w.muscle_pairs)
+    muscle_contacts += w.respondMuscleMuscle(p.first_object, p.second_object, {p.first, p.second}) ? 1 : 0;
+  stats_.muscle_cd_ms += millisecondsSince(start);
+
+  start = Clock::now();
+  const int skipped = w.forEachMuscleBoneOverlap(
+      settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
+    pairs_found += static_cast<std::int64_t>(w.pairs.size());
+    for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
+  });
+  stats_.bone_cd_ms += millisecondsSince(start);
+
+  // Apply the superposition of every particle's displacements, then stop the particles that collided.
+  start = Clock::now();
+  for (const std::int32_t p : w.touched) {
+    state.position.col(p) += w.displacement.col(p);
+    state.previous_position.col(p) = state.position.col(p);
+    w.displacement.col(p).setZero();
+    w.contact_count[static_cast<std::size_t>(p)] = 0;
+  }
+  w.touched.clear();
+  stats_.response_ms += millisecondsSince(start);
+
+  contacts = muscle_contacts + bone_contacts;
+  stats_.contacts = contacts;
+  stats_.muscle_muscle_contacts = muscle_contacts;
+  stats_.muscle_bone_contacts = bone_contacts;
+  stats_.bones_skipped = skipped;
+  ++stats_.resolve_calls;
+  last_pairs_found_ = pairs_found;
+  return contacts;
+}
+
+CollisionStats CollisionWorld::measure(const ParticleState& state) const {
+  Impl& w = *impl_;  // the broad phase's trees and grids are caches: refreshing them does not change the world
+  w.gatherMuscles(state);
+  PenetrationSum muscle_sum, bone_sum;
+  w.findMusclePairs();
+  for (const ObjectSpherePair& p : w.muscle_pairs) {
+    const std::size_t a = static_cast<std::size_t>(p.first_object), b = static_cast<std::size_t>(p.second_object);
+    if (w.sphere_fixed[a][static_cast<std::size_t>(p.first)] && w.sphere_fixed[b][static_cast<std::size_t>(p.second)])
+      continue;
+    muscle_sum.add(w.penetration(w.muscle_spheres[a], p.first, w.muscle_spheres[b], p.second));
+  }
+  const int skipped = w.forEachMuscleBoneOverlap(
+      settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
+    for (const SpherePair& pair : w.pairs) {
+      if (w.sphere_fixed[static_cast<std::size_t>(m)][static_cast<std::size_t>(pair.first)]) continue;
+      bone_sum.add(w.penetration(w.muscle_spheres[static_cast<std::size_t>(m)], pair.first,
+                                 w.bone_world[static_cast<std::size_t>(b)], pair.second));
+    }
+  });
+  CollisionStats result = stats_;
+  result.muscle_muscle_contacts = muscle_sum.count;
+  result.muscle_bone_contacts = bone_sum.count;
+  result.contacts = muscle_sum.count + bone_sum.count;
+  result.max_penetration_muscle_muscle_m = muscle_sum.max;
+  result.mean_penetration_muscle_muscle_m = muscle_sum.mean();
+  result.max_penetration_muscle_bone_m = bone_sum.max;
+  result.mean_penetration_muscle_bone_m = bone_sum.mean();
+  result.bones_skipped = skipped;
+  return result;
+}
+
+void CollisionWorld::resetTiming() {
+  stats_.muscle_cd_ms = 0;
+  stats_.bone_cd_ms = 0;
+  stats_.response_ms = 0;
+  stats_.resolve_calls = 0;
+}
+
+const SphereSet& CollisionWorld::boneSpheresRest(int bone) const {
+  if (bone < 0 || bone >= impl_->bone_count)
+    throw std::out_of_range("CollisionWorld::boneSpheresRest: no bone " + std::to_string(bone));
+  return impl_->bone_rest[static_cast<std::size_t>(bone)];
+}
+
+int CollisionWorld::muscleSphereCount() const {
+  int total = 0;
+  for (const auto& particles : impl_->sphere_particle) total += static_cast<int>(particles.size());
+  return total;
+}
+
+}  // namespace muscle_deformation

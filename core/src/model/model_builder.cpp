@@ -1,0 +1,306 @@
+#include "muscle_deformation/core/model/model_builder.hpp"
+
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/fibre_sampling.hpp"
+#include "muscle_deformation/core/collision/point_index.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+
+namespace muscle_deformation {
+
+std::string validate(const ModelSettings& s) {
+  if (s.particles_per_fibre < 2) return "particles_per_fibre must be at least 2";
+  if (s.spring_layout == SpringLayout::nearest_neighbours && s.nearest_neighbours < 1)
+    return "nearest_neighbours must be at least 1";
+  if (!(s.attachment_distance_m >= 0) || !std::isfinite(s.attachment_distance_m))
+    return "attachment_distance_m must be a finite distance >= 0";
+  if (!(s.spring_material_n > 0) || !std::isfinite(s.spring_material_n))
+    return "spring_material_n must be a finite value > 0";
+  if (!(s.density_kg_per_m3 > 0) || !std::isfinite(s.density_kg_per_m3))
+    return "density_kg_per_m3 must be a finite value > 0";
+  if (!(s.boundary_fibre_fraction >= 0 && s.boundary_fibre_fraction <= 1))
+    return "boundary_fibre_fraction must be in [0, 1]";
+  return {};
+}
+
+namespace {
+
+struct BoneQueries {
+  std::vector<PointIndex> vertices;       // nearest bone vertex: a cheap upper bound of the surface distance
+  std::vector<SurfaceDistance> surfaces;  // exact distances where they decide something (attachments)
+};
+
+BoneQueries prepareBoneQueries(const std::vector<Bone>& bones) {
+  BoneQueries queries;
+  for (const Bone& bone : bones) {
+    queries.vertices.emplace_back(bone.surface.vertices);
+    queries.surfaces.emplace_back(bone.surface.vertices, bone.surface.triangles);
+  }
+  return queries;
+}
+
+ParticlePairs layoutPairs(const ModelSettings& settings, const FibreSamples& samples) {
+  switch (settings.spring_layout) {
+    case SpringLayout::nearest_neighbours: return nearestNeighbourPairs(samples.position, settings.nearest_neighbours);
+    case SpringLayout::cubic6: return cubicLatticePairs(samples.position, samples.fibre_of, samples.sample_of, false);
+    case SpringLayout::cubic26: return cubicLatticePairs(samples.position, samples.fibre_of, samples.sample_of, true);
+    case SpringLayout::delaunay: return delaunayPairs(samples.position);
+  }
+  return {};
+}
+
+// Fibres nearest the surface. Every fibre is probed at the same number of points along its length, whatever the
+// particles per fibre; each surface vertex votes for its closest probe, and a fibre whose probes won enough votes is a
+// boundary fibre. Interior fibres only win votes near the muscle ends, where all fibres converge. Probing the fibres
+// rather than the particles keeps the answer independent of the sampling resolution.
+std::vector<std::uint8_t> markBoundary(const Muscle& muscle, const FibreSamples& samples, double fraction) {
+  constexpr int kProbesPerFibre = 16;
+  std::vector<std::int32_t> fibre_ids(samples.fibre_of.begin(), samples.fibre_of.end());
+  std::sort(fibre_ids.begin(), fibre_ids.end());
+  fibre_ids.erase(std::unique(fibre_ids.begin(), fibre_ids.end()), fibre_ids.end());
+
+  Eigen::Matrix3Xd probes(3, static_cast<Eigen::Index>(fibre_ids.size()) * kProbesPerFibre);
+  for (std::size_t f = 0; f < fibre_ids.size(); ++f) {
+    const Polyline& fibre = muscle.fibres[fibre_ids[f]];
+    const double length = polylineLength(fibre);
+    for (int k = 0; k < kProbesPerFibre; ++k)
+      probes.col(static_cast<Eigen::Index>(f) * kProbesPerFibre + k) =
+          pointAtArcLength(fibre, length * (k + 0.5) / kProbesPerFibre);
+  }
+  std::vector<std::uint8_t> probe_won(static_cast<std::size_t>(probes.cols()), 0);
+  const PointIndex probe_index(probes);
+  for (Eigen::Index v = 0; v < muscle.surface.vertices.cols(); ++v)
+    probe_won[probe_index.nearest(muscle.surface.vertices.col(v)).first] = 1;
+
+  std::map<std::int32_t, bool> is_boundary_fibre;
+  for (std::size_t f = 0; f < fibre_ids.size(); ++f) {
+    int won = 0;
+    for (int k = 0; k < kProbesPerFibre; ++k) won += probe_won[f * kProbesPerFibre + k];
+    is_boundary_fibre[fibre_ids[f]] = won >= fraction * kProbesPerFibre;
+  }
+  std::vector<std::uint8_t> boundary(samples.fibre_of.size(), 0);
+  for (std::size_t i = 0; i < boundary.size(); ++i) boundary[i] = is_boundary_fibre[samples.fibre_of[i]] ? 1 : 0;
+  return boundary;
+}
+
+}  // namespace
+
+MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
+                                       const ModelSettings& settings, ModelBuildReport* report) {
+  const auto start = std::chrono::steady_clock::now();
+  if (const std::string problem = validate(settings); !problem.empty()) throw ModelError("model settings: " + problem);
+  if (muscles.empty()) throw ModelError("no muscles to simulate");
+  for (std::size_t b = 0; b < bones.size(); ++b)
+    if (bones[b].surface.triangleCount() == 0)
+      throw ModelError("bone '" + bones[b].name + "' has an empty surface mesh");
+
+  ModelBuildReport local_report;
+  ModelBuildReport& out = report ? *report : local_report;
+  out = ModelBuildReport{};
+  const BoneQueries bone_queries = prepareBoneQueries(bones);
+  const int bone_count = static_cast<int>(bones.size());
+
+  MassSpringSystem system;
+  std::vector<Eigen::Matrix3Xd> positions;
+  std::size_t total = 0;
+  std::vector<FibreSamples> all_samples;
+  for (std::size_t m = 0; m < muscles.size(); ++m) {
+    const Muscle& muscle = muscles[m];
+    FibreSamples samples;
+    try {
+      samples = sampleFibres(muscle.fibres, settings.particles_per_fibre,
+                             settings.sampling_seed + static_cast<std::uint32_t>(m));
+    } catch (const std::exception& error) {
+      throw ModelError("muscle '" + muscle.name + "': " + error.what());
+    }
+    if (samples.position.cols() == 0)
+      throw ModelError("muscle '" + muscle.name + "' has no usable fibre (" + std::to_string(muscle.fibres.size()) +
+                       " given, all shorter than 1 micrometre or non-finite)");
+    if (muscle.surface.triangleCount() == 0 || !muscle.surface.vertices.allFinite())
+      throw ModelError("muscle '" + muscle.name + "' has an empty or non-finite surface mesh");
+    total += static_cast<std::size_t>(samples.position.cols());
+    all_samples.push_back(std::move(samples));
+  }
+
+  const auto n = static_cast<Eigen::Index>(total);
+  system.rest_position.resize(3, n);
+  system.mass.resize(n);
+  system.radius.setZero(n);
+  system.is_fixed.assign(total, 0);
+  system.is_boundary.assign(total, 0);
+  system.fixed_bone.assign(total, kNoBone);
+  system.muscle_of.resize(total);
+  system.fibre_of.resize(total);
+  system.sample_of.resize(total);
+  system.blend_bone.setConstant(MassSpringSystem::kBlendBones, n, kNoBone);
+  system.blend_weight.setZero(MassSpringSystem::kBlendBones, n);
+  system.muscle_begin.push_back(0);
+
+  std::vector<std::pair<std::int32_t, std::int32_t>> spring_pairs;
+  std::vector<double> spring_rest;
+  Eigen::Index offset = 0;
+  for (std::size_t m = 0; m < muscles.size(); ++m) {
+    const Muscle& muscle = muscles[m];
+    const FibreSamples& samples = all_samples[m];
+    const Eigen::Index count = samples.position.cols();
+    MuscleBuildSummary summary;
+    summary.name = muscle.name;
+    summary.fibres = static_cast<int>(muscle.fibres.size()) - static_cast<int>(samples.skipped_fibres.size());
+    summary.skipped_fibres = static_cast<int>(samples.skipped_fibres.size());
+    summary.particles = static_cast<int>(count);
+    for (int f : samples.skipped_fibres)
+      out.warnings.push_back("muscle '" + muscle.name + "': fibre " + std::to_string(f) +
+                             " skipped (fewer than 2 points, non-finite, or shorter than 1 micrometre)");
+
+    double volume = enclosedVolume(muscle.surface);
+    if (volume < 0) {
+      out.warnings.push_back("muscle '" + muscle.name + "': surface triangles wind inwards; volume taken as positive");
+      volume = -volume;
+    }
+    if (!(volume > 0)) throw ModelError("muscle '" + muscle.name + "': surface encloses no volume");
+    summary.volume_m3 = volume;
+
+    system.rest_position.middleCols(offset, count) = samples.position;
+    system.mass.segment(offset, count).setConstant(settings.density_kg_per_m3 * volume / static_cast<double>(count));
+    const std::vector<std::uint8_t> boundary = markBoundary(muscle, samples, settings.boundary_fibre_fraction);
+
+    // Per particle: fibre bookkeeping, attachments, and the bones it follows in the rigid pre-transform.
+    for (Eigen::Index local = 0; local < count; ++local) {
+      const Eigen::Index i = offset + local;
+      const Eigen::Vector3d p = samples.position.col(local);
+      system.muscle_of[i] = static_cast<std::int32_t>(m);
+      system.fibre_of[i] = samples.fibre_of[local];
+      system.sample_of[i] = samples.sample_of[local];
+      system.is_boundary[i] = boundary[local];
+      summary.boundary_particles += boundary[local];
+      if (bone_count == 0) {
+        const bool fibre_end = samples.sample_of[local] == 0 || samples.sample_of[local] == settings.particles_per_fibre - 1;
+        system.is_fixed[i] = settings.fix_fibre_ends && fibre_end ? 1 : 0;
+        summary.fixed_particles += system.is_fixed[i];
+        continue;
+      }
+      // Two nearest bones by vertex distance, inverse-square weights: the GRAPP paper's blended rigid transform.
+      std::vector<std::pair<double, int>> by_distance;
+      for (int b = 0; b < bone_count; ++b) by_distance.emplace_back(bone_queries.vertices[b].nearest(p).second, b);
+      std::sort(by_distance.begin(), by_distance.end());
+
+      int attached = kNoBone;
+      double attached_distance = settings.attachment_distance_m;
+      for (int b = 0; b < bone_count; ++b) {
+        const double d = bone_queries.surfaces[b].distanceWithin(p, attached_distance);
+        if (d <= attached_distance) {
+          attached = b;
+          attached_distance = d;
+        }
+      }
+      const bool fibre_end = samples.sample_of[local] == 0 || samples.sample_of[local] == settings.particles_per_fibre - 1;
+      if (attached == kNoBone && settings.fix_fibre_ends && fibre_end) {
+        double best = std::numeric_limits<double>::infinity();
+        for (int b = 0; b < bone_count; ++b) {
+          const double d = bone_queries.surfaces[b].distance(p);
+          if (d < best) {
+            best = d;
+            attached = b;
+          }
+        }
+      }
+      if (attached != kNoBone) {
+        system.is_fixed[i] = 1;
+        system.fixed_bone[i] = attached;
+        system.blend_bone(0, i) = attached;
+        system.blend_weight(0, i) = 1.0;
+        ++summary.fixed_particles;
+        continue;
+      }
+      const int blended = std::min(bone_count, MassSpringSystem::kBlendBones);
+      double weight_sum = 0;
+      for (int k = 0; k < blended; ++k) {
+        const double d = std::max(by_distance[k].first, 1e-4);
+        system.blend_bone(k, i) = by_distance[k].second;
+        system.blend_weight(k, i) = 1.0 / (d * d);
+        weight_sum += system.blend_weight(k, i);
+      }
+      system.blend_weight.col(i) /= weight_sum;
+    }
+
+    // Springs of this muscle, in global indices.
+    ParticlePairs pairs;
+    try {
+      pairs = layoutPairs(settings, samples);
+    } catch (const std::exception& error) {
+      throw ModelError("muscle '" + muscle.name + "': " + toString(settings.spring_layout) + " layout: " + error.what());
+    }
+    for (const auto& [a, b] : pairs) {
+      const double rest = (samples.position.col(a) - samples.position.col(b)).norm();
+      if (!(rest > 1e-9)) {
+        ++summary.dropped_springs;
+        continue;
+      }
+      spring_pairs.emplace_back(static_cast<std::int32_t>(offset + a), static_cast<std::int32_t>(offset + b));
+      spring_rest.push_back(rest);
+      ++summary.springs;
+    }
+    if (summary.dropped_springs > 0)
+      out.warnings.push_back("muscle '" + muscle.name + "': " + std::to_string(summary.dropped_springs) +
+                             " springs between coincident particles dropped");
+
+    system.muscle_name.push_back(muscle.name);
+    offset += count;
+    system.muscle_begin.push_back(static_cast<std::int32_t>(offset));
+    out.muscles.push_back(summary);
+  }
+
+  const std::size_t spring_count = spring_pairs.size();
+  system.springs.first.resize(spring_count);
+  system.springs.second.resize(spring_count);
+  system.springs.rest_length.resize(static_cast<Eigen::Index>(spring_count));
+  system.springs.stiffness.resize(static_cast<Eigen::Index>(spring_count));
+  for (std::size_t s = 0; s < spring_count; ++s) {
+    system.springs.first[s] = spring_pairs[s].first;
+    system.springs.second[s] = spring_pairs[s].second;
+    system.springs.rest_length[static_cast<Eigen::Index>(s)] = spring_rest[s];
+    system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
+  }
+  // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
+  const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
+  for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;
+  out.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return system;
+}
+
+MassSpringSystem systemFromParticles(const Eigen::Matrix3Xd& positions, const ParticlePairs& springs,
+                                     double particle_mass_kg, double spring_material_n) {
+  MassSpringSystem system;
+  const Eigen::Index n = positions.cols();
+  const auto count = static_cast<std::size_t>(n);
+  system.rest_position = positions;
+  system.mass.setConstant(n, particle_mass_kg);
+  system.radius.setZero(n);
+  system.is_fixed.assign(count, 0);
+  system.is_boundary.assign(count, 0);
+  system.fixed_bone.assign(count, kNoBone);
+  system.muscle_of.assign(count, 0);
+  system.fibre_of.assign(count, 0);
+  system.sample_of.resize(count);
+  for (std::size_t i = 0; i < count; ++i) system.sample_of[i] = static_cast<std::int32_t>(i);
+  system.blend_bone.setConstant(MassSpringSystem::kBlendBones, n, kNoBone);
+  system.blend_weight.setZero(MassSpringSystem::kBlendBones, n);
+  system.muscle_begin = {0, static_cast<std::int32_t>(n)};
+  system.muscle_name = {"particles"};
+  system.springs.rest_length.resize(static_cast<Eigen::Index>(springs.size()));
+  system.springs.stiffness.resize(static_cast<Eigen::Index>(springs.size()));
+  for (std::size_t s = 0; s < springs.size(); ++s) {
+    const double rest = (positions.col(springs[s].first) - positions.col(springs[s].second)).norm();
+    system.springs.first.push_back(springs[s].first);
+    system.springs.second.push_back(springs[s].second);
+    system.springs.rest_length[static_cast<Eigen::Index>(s)] = rest;
+    system.springs.stiffness[static_cast<Eigen::Index>(s)] = spring_material_n / rest;
+  }
+  return system;
+}
+
+}  // namespace muscle_deformation

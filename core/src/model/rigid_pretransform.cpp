@@ -1,0 +1,110 @@
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+BoneTransforms boneTransformsOf(const std::vector<Bone>& bones, const Pose& pose) {
+  BoneTransforms transforms;
+  transforms.reserve(bones.size());
+  for (const Bone& bone : bones) transforms.push_back(pose.transformOf(bone.name));
+  return transforms;
+}
+
+BoneMotion largestBoneMotion(const BoneTransforms& from, const BoneTransforms& to,
+                             const std::vector<Eigen::Vector3d>& rest_centroids) {
+  BoneMotion motion;
+  const std::size_t count = std::min({from.size(), to.size(), rest_centroids.size()});
+  for (std::size_t i = 0; i < count; ++i) {
+    motion.translation_m =
+        std::max(motion.translation_m, (to[i] * rest_centroids[i] - from[i] * rest_centroids[i]).norm());
+    const Eigen::AngleAxisd turn(to[i].linear() * from[i].linear().transpose());
+    motion.rotation_rad = std::max(motion.rotation_rad, std::abs(turn.angle()));
+  }
+  return motion;
+}
+
+std::vector<Eigen::Vector3d> boneRestCentroids(const std::vector<Bone>& bones) {
+  std::vector<Eigen::Vector3d> centroids;
+  centroids.reserve(bones.size());
+  for (const Bone& bone : bones) {
+    const Vertices& v = bone.surface.vertices;
+    centroids.push_back(v.cols() ? Eigen::Vector3d(v.rowwise().mean()) : Eigen::Vector3d::Zero());
+  }
+  return centroids;
+}
+
+namespace {
+void checkTransforms(const MassSpringSystem& system, const BoneTransforms& transforms) {
+  for (Eigen::Index i = 0; i < system.blend_bone.cols(); ++i)
+    for (int k = 0; k < MassSpringSystem::kBlendBones; ++k)
+      if (system.blend_bone(k, i) >= static_cast<int>(transforms.size()))
+        throw std::invalid_argument("bone transforms: " + std::to_string(transforms.size()) +
+                                    " given, but the model refers to bone " + std::to_string(system.blend_bone(k, i)));
+}
+}  // namespace
+
+namespace {
+// Linear blend of the particle's bones' transforms applied to `point`.
+Eigen::Vector3d blendedMotion(const MassSpringSystem& system, const BoneTransforms& transforms, Eigen::Index particle,
+                              const Eigen::Vector3d& point) {
+  Eigen::Vector3d blended = Eigen::Vector3d::Zero();
+  double weight_sum = 0;
+  for (int k = 0; k < MassSpringSystem::kBlendBones; ++k) {
+    const int bone = system.blend_bone(k, particle);
+    if (bone == kNoBone) continue;
+    blended += system.blend_weight(k, particle) * (transforms[bone] * point);
+    weight_sum += system.blend_weight(k, particle);
+  }
+  return weight_sum > 0 ? Eigen::Vector3d(blended / weight_sum) : point;
+}
+}  // namespace
+
+void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state) {
+  checkTransforms(system, transforms);
+  const Eigen::Index n = system.particleCount();
+  state.position.resize(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) state.position.col(i) = blendedMotion(system, transforms, i, system.rest_position.col(i));
+  state.previous_position = state.position;
+}
+
+void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_transforms,
+               const BoneTransforms& transforms, ParticleState& state) {
+  checkTransforms(system, transforms);
+  checkTransforms(system, previous_transforms);
+  if (state.position.cols() != system.particleCount())
+    throw std::invalid_argument("warm start: previous state has " + std::to_string(state.position.cols()) +
+                                " particles, the model " + std::to_string(system.particleCount()));
+  BoneTransforms motion(transforms.size());
+  for (std::size_t b = 0; b < transforms.size(); ++b) motion[b] = transforms[b] * previous_transforms[b].inverse();
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (system.is_fixed[i] && system.fixed_bone[i] != kNoBone)
+      state.position.col(i) = transforms[system.fixed_bone[i]] * system.rest_position.col(i);
+    else if (!system.is_fixed[i])
+      state.position.col(i) = blendedMotion(system, motion, i, state.position.col(i));
+  }
+  state.previous_position = state.position;
+}
+
+void moveAttachments(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state) {
+  checkTransforms(system, transforms);
+  if (state.position.cols() != system.particleCount())
+    throw std::invalid_argument("warm start: previous state has " + std::to_string(state.position.cols()) +
+                                " particles, the model " + std::to_string(system.particleCount()));
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (!system.is_fixed[i] || system.fixed_bone[i] == kNoBone) continue;
+    state.position.col(i) = transforms[system.fixed_bone[i]] * system.rest_position.col(i);
+    state.previous_position.col(i) = state.position.col(i);
+  }
+}
+
+ParticleState restState(const MassSpringSystem& system) {
+  ParticleState state;
+  state.position = system.rest_position;
+  state.previous_position = system.rest_position;
+  return state;
+}
+
+}  // namespace muscle_deformation

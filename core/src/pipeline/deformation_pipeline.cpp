@@ -1,0 +1,112 @@
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+
+#include <chrono>
+#include <sstream>
+
+namespace muscle_deformation {
+namespace {
+
+double millisecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
+
+DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
+                                         std::vector<Bone> bones, const PipelineSettings& settings)
+    : descriptions_(std::move(descriptions)), settings_(settings) {
+  simulation_ = std::make_unique<MuscleSimulation>(std::move(muscles), std::move(bones), settings_.simulation);
+  const MuscleSimulation& sim = *simulation_;
+  if (settings_.skin_surfaces || settings_.measure_fidelity) {
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      skinning_ = std::make_unique<SurfaceSkinning>(sim.system(), sim.muscles(), settings_.skinning);
+    } catch (const std::exception& e) {
+      skinning_problem_ = e.what();
+    }
+    skinning_setup_ms_ = millisecondsSince(start);
+  } else {
+    skinning_problem_ = "surface skinning disabled by the settings";
+  }
+  if (settings_.measure_fidelity && skinning_) {
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      metrics_ = std::make_unique<DeformationMetrics>(sim.bones(), sim.muscles(), sim.system());
+    } catch (const std::exception& e) {
+      metrics_problem_ = e.what();
+    }
+    metrics_setup_ms_ = millisecondsSince(start);
+  } else {
+    metrics_problem_ = settings_.measure_fidelity ? "needs the surface skinning (" + skinning_problem_ + ")"
+                                                  : "fidelity metrics disabled by the settings";
+  }
+}
+
+const PipelineFrame& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
+                                                bool want_metrics) {
+  frame_.solve = simulation_->solve(pose, start);
+  frame_.bone_transforms = boneTransformsOf(simulation_->bones(), pose);
+  frame_.has_surfaces = false;
+  frame_.has_metrics = false;
+  frame_.skinning_ms = 0;
+  frame_.metrics_ms = 0;
+  const Eigen::Matrix3Xd& positions = simulation_->state().position;
+  if (!frame_.solve.finite) return frame_;
+  if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
+    const auto skin_start = std::chrono::steady_clock::now();
+    skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
+    frame_.skinning_ms = millisecondsSince(skin_start);
+    frame_.has_surfaces = true;
+  }
+  if (metrics_ && want_metrics && frame_.has_surfaces) {
+    const auto metrics_start = std::chrono::steady_clock::now();
+    frame_.metrics = metrics_->measure(frame_.surfaces, positions, frame_.bone_transforms);
+    frame_.metrics_ms = millisecondsSince(metrics_start);
+    frame_.has_metrics = true;
+  }
+  return frame_;
+}
+
+std::size_t DeformationPipeline::modelBytes() const {
+  std::size_t bytes = simulation_->system().modelBytes();
+  if (skinning_) {
+    for (const MuscleSkin& skin : skinning_->muscles()) {
+      bytes += static_cast<std::size_t>(skin.weights().nonZeros()) * (sizeof(double) + sizeof(std::int32_t));
+      bytes += static_cast<std::size_t>(skin.triangles().size()) * sizeof(int);
+    }
+  }
+  return bytes;
+}
+
+std::string DeformationPipeline::describe() const {
+  const MuscleSimulation& sim = *simulation_;
+  const MassSpringSystem& system = sim.system();
+  const ModelBuildReport& report = sim.buildReport();
+  long fixed = 0, boundary = 0;
+  for (const MuscleBuildSummary& m : report.muscles) {
+    fixed += m.fixed_particles;
+    boundary += m.boundary_particles;
+  }
+  long bone_spheres = 0, muscle_spheres = 0;
+  if (const CollisionWorld* world = sim.collisionWorld()) {
+    for (int count : world->boneSphereCounts()) bone_spheres += count;
+    muscle_spheres = world->muscleSphereCount();
+  }
+  std::ostringstream out;
+  out << system.muscleCount() << " muscles, " << sim.bones().size() << " bones; " << system.particleCount()
+      << " particles (" << fixed << " fixed, " << boundary << " on the boundary), " << system.springs.size()
+      << " springs; solver " << toString(sim.settings().solver_kind) << "; collision " << (sim.collisionWorld() ? "on" : "off") << ": " << muscle_spheres
+      << " muscle spheres, " << bone_spheres << " bone spheres; model memory "
+      << static_cast<double>(modelBytes()) / (1024.0 * 1024.0) << " MiB; build " << report.build_ms << " ms";
+  if (skinning_)
+    out << ", surface skinning (" << toString(skinning_->settings().method) << ") " << skinning_setup_ms_ << " ms";
+  else
+    out << "; no surfaces: " << skinning_problem_;
+  if (metrics_)
+    out << ", fidelity metrics " << metrics_setup_ms_ << " ms";
+  else
+    out << "; no fidelity metrics: " << metrics_problem_;
+  return out.str();
+}
+
+}  // namespace muscle_deformation

@@ -1,0 +1,76 @@
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings)
+    : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
+  for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
+  if (const std::string problem = validate(settings_.collision); !problem.empty())
+    throw std::invalid_argument("collision settings: " + problem);
+  system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
+  if (settings_.collisions) {
+    std::vector<SphereSet> bone_spheres;
+    for (const Bone& bone : bones_) bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings_.collision.bone_sphere_rule));
+    rest_overlaps_ = clearRestOverlaps(system_, bone_spheres);
+    std::vector<std::string> bone_names;
+    for (const Bone& bone : bones_) bone_names.push_back(bone.name);
+    collision_ = std::make_unique<CollisionWorld>(system_, std::move(bone_spheres), settings_.collision, bone_names);
+  }
+  // After the collision set-up: both solvers read the sphere radii it may shrink (the local/global contact weights,
+  // the adaptive step's boundary particles). The local/global solver factorises its matrix here, once: it depends on
+  // the model and settings, not the pose.
+  solver_ = makeSolver(SolverChoice{settings_.solver_kind, settings_.solver, settings_.local_global}, system_);
+  state_ = restState(system_);
+}
+
+void MuscleSimulation::reset() { has_previous_ = false; }
+
+void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                                   double time_budget_ms, const SolveLimits& limits) {
+  solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
+  for (auto* settings : {&settings_.solver.stopping_rule, &settings_.local_global.stopping_rule}) *settings = rule;
+  settings_.solver.max_iterations = settings_.local_global.max_iterations = max_iterations;
+  settings_.solver.displacement_tolerance_m = settings_.local_global.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.solver.time_budget_ms = settings_.local_global.time_budget_ms = time_budget_ms;
+  settings_.solver.limits = settings_.local_global.limits = limits;
+}
+
+FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
+  const BoneTransforms transforms = boneTransformsOf(bones_, pose);
+  for (const Eigen::Isometry3d& transform : transforms)
+    if (!transform.matrix().allFinite()) throw std::invalid_argument("pose has a non-finite bone transform");
+  FrameStats stats;
+  stats.warm_started = start == StartMode::warm && has_previous_;
+  if (stats.warm_started)
+    warmStart(system_, previous_transforms_, transforms, state_);
+  else
+    rigidPretransform(system_, transforms, state_);
+
+  if (collision_) {
+    collision_->setBoneTransforms(transforms);
+    collision_->resetTiming();
+    const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };
+    stats.solve = solver_->solve(state_, resolve);
+    stats.collision = collision_->measure(state_);
+  } else {
+    stats.solve = solver_->solve(state_);
+  }
+  // The solvers put a diverged state back as it was on entry, which is finite whenever the previous result was. Should
+  // anything still leave a non-finite position, fall back to the rigid pre-transform of the rest shape: finite by
+  // construction, and a pose-consistent answer rather than none.
+  stats.finite = state_.position.allFinite();
+  if (!stats.finite) {
+    rigidPretransform(system_, transforms, state_);
+    stats.solve.diverged = true;
+    stats.fell_back_to_pretransform = true;
+    if (collision_) stats.collision = collision_->measure(state_);
+    stats.finite = state_.position.allFinite();
+  }
+  previous_transforms_ = transforms;
+  has_previous_ = stats.finite && !stats.solve.diverged;  // never warm-start from a broken state
+  return stats;
+}
+
+}  // namespace muscle_deformation

@@ -1,0 +1,354 @@
+// The scene half of scene loading: URI resolution, the scene YAML, and assembling bones and muscles at rest.
+#include "muscle_deformation/core/scene/scene.hpp"
+
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <set>
+#include <sstream>
+#include <utility>
+
+namespace muscle_deformation {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+bool startsWith(const std::string& text, const std::string& prefix) {
+  return text.compare(0, prefix.size(), prefix) == 0;
+}
+
+// "file line N" (yaml-cpp lines are 0-based; editors count from 1).
+std::string where(const std::string& path, const YAML::Mark& mark) {
+  if (mark.line < 0) return path;
+  return path + " line " + std::to_string(mark.line + 1);
+}
+
+std::string requiredString(const YAML::Node& map, const char* key, const std::string& path, const std::string& what) {
+  const YAML::Node value = map[key];
+  if (!value.IsDefined() || value.IsNull()) {
+    throw SceneError(where(path, map.Mark()) + ": " + what + " has no '" + key + "' key");
+  }
+  if (!value.IsScalar() || value.Scalar().empty()) {
+    throw SceneError(where(path, value.Mark()) + ": '" + key + "' of " + what + " must be a non-empty string");
+  }
+  return value.Scalar();
+}
+
+MuscleDescription parseMuscle(const YAML::Node& node, std::size_t index, const std::string& path) {
+  const std::string what = "muscle #" + std::to_string(index + 1);
+  if (!node.IsMap()) throw SceneError(where(path, node.Mark()) + ": " + what + " must be a map of keys");
+  MuscleDescription m;
+  m.name = requiredString(node, "name", path, what);
+  const std::string named = "muscle '" + m.name + "'";
+  m.surface_file = requiredString(node, "surface", path, named);
+  m.fibre_file = requiredString(node, "fibres", path, named);
+  m.origin_bone = requiredString(node, "origin_bone", path, named);
+  m.insertion_bone = requiredString(node, "insertion_bone", path, named);
+
+  // YAML::Node assignment writes through to the document, so pick the key with a copy-construction instead.
+  const YAML::Node colour = node["color"].IsDefined() ? node["color"] : node["colour"];
+  if (colour.IsDefined() && !colour.IsNull()) {
+    if (!colour.IsSequence() || (colour.size() != 3 && colour.size() != 4)) {
+      throw SceneError(where(path, colour.Mark()) + ": 'color' of " + named +
+                       " must be a list of 3 or 4 numbers in [0, 1] (RGB or RGBA)");
+    }
+    for (std::size_t k = 0; k < colour.size(); ++k) {
+      double c = 0;
+      try {
+        c = colour[k].as<double>();
+      } catch (const YAML::Exception&) {
+        throw SceneError(where(path, colour[k].Mark()) + ": 'color' of " + named + ": '" + colour[k].Scalar() +
+                         "' is not a number");
+      }
+      if (!(c >= 0.0 && c <= 1.0)) {
+        throw SceneError(where(path, colour[k].Mark()) + ": 'color' of " + named + ": components must be in [0, 1]");
+      }
+      m.colour[k] = static_cast<float>(c);
+    }
+    if (colour.size() == 3) m.colour[3] = 1.0f;
+  }
+
+  const YAML::Node tags = node["tags"];
+  if (tags.IsDefined() && !tags.IsNull()) {
+    if (!tags.IsSequence()) throw SceneError(where(path, tags.Mark()) + ": 'tags' of " + named + " must be a list");
+    for (const auto& tag : tags) {
+      if (!tag.IsScalar()) throw SceneError(where(path, tag.Mark()) + ": tags of " + named + " must be strings");
+      m.tags.push_back(tag.Scalar());
+    }
+  }
+  return m;
+}
+
+}  // namespace
+
+UriResolver makeUriResolver(std::map<std::string, std::string> package_roots, std::string base_directory) {
+  return [roots = std::move(package_roots), base = std::move(base_directory)](const std::string& uri) -> std::string {
+    std::string path;
+    if (startsWith(uri, "package://")) {
+      const std::string rest = uri.substr(10);
+      const std::size_t slash = rest.find('/');
+      const std::string package = rest.substr(0, slash);
+      const auto root = roots.find(package);
+      if (root == roots.end()) {
+        throw SceneError("'" + uri + "': unknown package '" + package + "' (no root directory given for it)");
+      }
+      path = slash == std::string::npos ? root->second : (fs::path(root->second) / rest.substr(slash + 1)).string();
+    } else if (startsWith(uri, "file://")) {
+      path = uri.substr(7);
+      if (!startsWith(path, "/")) {
+        throw SceneError("'" + uri + "': only local absolute file URIs (file:///path) are supported");
+      }
+    } else if (uri.find("://") != std::string::npos) {
+      throw SceneError("'" + uri + "': unsupported URI scheme (use package://, file:// or a path)");
+    } else if (uri.empty()) {
+      throw SceneError("empty URI");
+    } else {
+      path = fs::path(uri).is_absolute() ? uri : (fs::path(base) / uri).string();
+    }
+    std::error_code error;
+    if (!fs::is_regular_file(path, error)) {
+      throw SceneError("'" + uri + "' resolves to '" + path + "', which is not a readable file");
+    }
+    return path;
+  };
+}
+
+SceneDescription loadSceneDescription(const std::string& yaml_path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(yaml_path);
+  } catch (const YAML::BadFile&) {
+    throw SceneError(yaml_path + ": cannot open the scene file");
+  } catch (const YAML::Exception& e) {
+    throw SceneError(where(yaml_path, e.mark) + ": not valid YAML: " + e.msg);
+  }
+  if (!root.IsMap()) throw SceneError(yaml_path + ": the scene file must be a map with urdf, frame and muscles");
+
+  SceneDescription scene;
+  scene.path = yaml_path;
+  scene.urdf_file = requiredString(root, "urdf", yaml_path, "the scene");
+  scene.frame = requiredString(root, "frame", yaml_path, "the scene");
+  const YAML::Node muscles = root["muscles"];
+  if (!muscles.IsDefined() || muscles.IsNull()) {
+    throw SceneError(where(yaml_path, root.Mark()) + ": the scene has no 'muscles' key");
+  }
+  if (!muscles.IsSequence() || muscles.size() == 0) {
+    throw SceneError(where(yaml_path, muscles.Mark()) + ": 'muscles' must be a non-empty list");
+  }
+  std::set<std::string> names;
+  for (std::size_t i = 0; i < muscles.size(); ++i) {
+    MuscleDescription m = parseMuscle(muscles[i], i, yaml_path);
+    if (!names.insert(m.name).second) {
+      throw SceneError(where(yaml_path, muscles[i].Mark()) + ": muscle name '" + m.name + "' is used twice");
+    }
+    scene.muscles.push_back(std::move(m));
+  }
+  return scene;
+}
+
+std::vector<MuscleDescription> selectMuscles(const SceneDescription& scene, const std::vector<std::string>& selection) {
+  if (selection.empty()) return scene.muscles;
+  std::set<std::string> wanted(selection.begin(), selection.end());
+  std::vector<std::string> unknown;
+  for (const std::string& entry : selection) {
+    const bool known = std::any_of(scene.muscles.begin(), scene.muscles.end(), [&](const MuscleDescription& m) {
+      return m.name == entry || std::find(m.tags.begin(), m.tags.end(), entry) != m.tags.end();
+    });
+    if (!known && std::find(unknown.begin(), unknown.end(), entry) == unknown.end()) unknown.push_back(entry);
+  }
+  if (!unknown.empty()) {
+    std::string list;
+    for (const auto& u : unknown) list += (list.empty() ? "'" : ", '") + u + "'";
+    throw SceneError(scene.path + ": no muscle or tag named " + list);
+  }
+  // Scene order, each muscle once, whatever the order and overlap of the entries.
+  std::vector<MuscleDescription> out;
+  for (const MuscleDescription& m : scene.muscles) {
+    bool take = wanted.count(m.name) > 0;
+    for (const auto& tag : m.tags) take = take || wanted.count(tag) > 0;
+    if (take) out.push_back(m);
+  }
+  return out;
+}
+
+std::string resolveScenePath(const std::string& path, const std::string& package_root) {
+  if (path.empty()) throw SceneError("empty path in the scene");
+  return fs::path(path).is_absolute() ? path : (fs::path(package_root) / path).string();
+}
+
+namespace {
+
+// Link poses at the zero configuration, re-expressed in the scene frame `frame`.
+std::map<std::string, Eigen::Isometry3d> restPosesInFrame(const Skeleton& skeleton, const std::string& frame) {
+  if (!skeleton.link(frame)) throw SceneError("scene frame '" + frame + "' is not a link of the URDF");
+  std::map<std::string, Eigen::Isometry3d> poses = skeleton.linkPoses({});
+  const auto frame_pose = poses.find(frame);
+  if (frame_pose == poses.end()) throw SceneError("scene frame '" + frame + "' is not connected to the URDF root");
+  const Eigen::Isometry3d to_frame = frame_pose->second.inverse();
+  for (auto& [name, pose] : poses) pose = to_frame * pose;
+  return poses;
+}
+
+std::vector<Bone> bonesAtRest(const Skeleton& skeleton, const UriResolver& resolve_mesh,
+                              const std::map<std::string, Eigen::Isometry3d>& rest) {
+  std::vector<Bone> bones;
+  for (const SkeletonLink& link : skeleton.links()) {
+    if (link.collision_meshes.empty()) continue;
+    const auto pose = rest.find(link.name);
+    if (pose == rest.end()) throw SceneError("link '" + link.name + "' has bones but is not connected to the root");
+    Bone bone;
+    bone.id = static_cast<int>(bones.size());
+    bone.name = link.name;
+    std::vector<TriangleMesh> parts;
+    Eigen::Index vertex_count = 0, triangle_count = 0;
+    for (const CollisionMeshRef& ref : link.collision_meshes) {
+      TriangleMesh part = loadTriangleMesh(resolve_mesh(ref.uri));
+      // URDF semantics: scale in the mesh frame, then the collision origin, then the link pose.
+      const Eigen::Isometry3d to_scene = pose->second * ref.origin;
+      part.vertices = to_scene * ref.scale.asDiagonal() * part.vertices;
+      // A mirroring scale (odd number of negative factors) turns the surface inside out: restore the winding.
+      if (ref.scale.prod() < 0) part.triangles.row(1).swap(part.triangles.row(2));
+      vertex_count += part.vertexCount();
+      triangle_count += part.triangleCount();
+      parts.push_back(std::move(part));
+    }
+    bone.surface.vertices.resize(3, vertex_count);
+    bone.surface.triangles.resize(3, triangle_count);
+    Eigen::Index v = 0, t = 0;
+    for (const TriangleMesh& part : parts) {
+      bone.surface.vertices.middleCols(v, part.vertexCount()) = part.vertices;
+      bone.surface.triangles.middleCols(t, part.triangleCount()) = part.triangles.array() + static_cast<int>(v);
+      v += part.vertexCount();
+      t += part.triangleCount();
+    }
+    bones.push_back(std::move(bone));
+  }
+  return bones;
+}
+
+}  // namespace
+
+std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve_mesh, const std::string& frame) {
+  return bonesAtRest(skeleton, resolve_mesh, restPosesInFrame(skeleton, frame));
+}
+
+Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
+                const std::string& package_root, const std::vector<std::string>& selection) {
+  Scene scene;
+  scene.skeleton = skeleton;
+  try {
+    scene.rest_link_poses = restPosesInFrame(skeleton, description.frame);
+  } catch (const SceneError& e) {
+    throw SceneError(description.path + ": " + e.what());
+  }
+  scene.muscle_descriptions = selectMuscles(description, selection);
+  // Check every name before loading anything, so a typo fails fast and names the muscle.
+  for (const MuscleDescription& m : scene.muscle_descriptions) {
+    for (const std::string* bone : {&m.origin_bone, &m.insertion_bone}) {
+      if (!skeleton.link(*bone)) {
+        throw SceneError(description.path + ": muscle '" + m.name + "' names bone '" + *bone +
+                         "', which is not a link of the URDF");
+      }
+    }
+  }
+  scene.bones = bonesAtRest(skeleton, resolve_mesh, scene.rest_link_poses);
+  // Bones are the links with <collision> meshes: without one, a muscle's attachments follow nothing and the muscles
+  // never move, which must not pass for a working scene.
+  if (scene.bones.empty()) {
+    throw SceneError(description.path + ": the URDF has no link with a <collision> mesh, so there are no bones to "
+                     "attach the muscles to (bones are the links' collision meshes)");
+  }
+  std::set<std::string> bone_names, meshless;
+  for (const Bone& bone : scene.bones) bone_names.insert(bone.name);
+  std::string named_meshless;
+  for (const MuscleDescription& m : scene.muscle_descriptions) {
+    for (const std::string* bone : {&m.origin_bone, &m.insertion_bone}) {
+      if (!bone_names.count(*bone)) {
+        named_meshless += std::string(named_meshless.empty() ? "" : ", ") + "muscle '" + m.name + "' names '" + *bone + "'";
+        meshless.insert(*bone);
+      }
+    }
+  }
+  if (!meshless.empty()) {
+    std::string links;
+    for (const std::string& name : meshless) links += (links.empty() ? "'" : ", '") + name + "'";
+    throw SceneError(description.path + ": link" + (meshless.size() > 1 ? "s " : " ") + links +
+                     " of the URDF ha" + (meshless.size() > 1 ? "ve" : "s") + " no <collision> mesh, so " +
+                     (meshless.size() > 1 ? "they are" : "it is") + " no bone (" + named_meshless + ")");
+  }
+  for (const MuscleDescription& m : scene.muscle_descriptions) {
+    Muscle muscle;
+    muscle.name = m.name;
+    // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths are relative
+    // to the package root.
+    const auto scenePath = [&](const std::string& path) {
+      return startsWith(path, "package://") || startsWith(path, "file://") ? resolve_mesh(path)
+                                                                            : resolveScenePath(path, package_root);
+    };
+    std::string surface_path, fibre_path;
+    try {
+      surface_path = scenePath(m.surface_file);
+      fibre_path = startsWith(m.fibre_file, "package://") || startsWith(m.fibre_file, "file://")
+                       ? scenePath(m.fibre_file)
+                       : resolveScenePath(m.fibre_file, package_root);
+    } catch (const SceneError& e) {
+      throw SceneError(description.path + ": muscle '" + m.name + "': " + e.what());
+    }
+    muscle.surface = loadClosedSurface(surface_path);
+    if (!fs::is_regular_file(fibre_path)) {
+      throw SceneError(description.path + ": fibre file of muscle '" + m.name + "' does not exist: " + fibre_path +
+                       " (make it with generate_fibres --scene " + description.path + ")");
+    }
+    muscle.fibres = loadPolylines(fibre_path);
+    if (muscle.fibres.empty()) throw SceneError(fibre_path + ": no fibres in the file (muscle '" + m.name + "')");
+    const FibreExcursion excursion = fibreExcursion(muscle);
+    if (excursion.max_outside_m > kFibreOutsideToleranceM) {
+      std::ostringstream message;
+      message << fibre_path << ": fibre " << excursion.fibre << " of muscle '" << m.name << "' runs "
+              << 1000.0 * excursion.max_outside_m << " mm outside the muscle's surface (at its point "
+              << excursion.point << "; fibres may end at most " << 1000.0 * kFibreOutsideToleranceM
+              << " mm outside). Is it the fibre file of another muscle, or in other units or another frame than "
+              << surface_path << "? generate_fibres makes fibres that fit";
+      throw SceneError(message.str());
+    }
+    scene.muscles.push_back(std::move(muscle));
+  }
+  return scene;
+}
+
+FibreExcursion fibreExcursion(const Muscle& muscle) {
+  FibreExcursion excursion;
+  const ClosedSurfaceInsideTest surface(muscle.surface, muscle.name);
+  for (std::size_t f = 0; f < muscle.fibres.size(); ++f) {
+    const Polyline& fibre = muscle.fibres[f];
+    for (Eigen::Index k = 0; k < fibre.cols(); ++k) {
+      const Eigen::Vector3d point = fibre.col(k);
+      if (!point.allFinite() || surface.contains(point)) continue;
+      const double outside = surface.distanceToSurface(point);
+      if (outside > excursion.max_outside_m) {
+        excursion.max_outside_m = outside;
+        excursion.fibre = static_cast<int>(f);
+        excursion.point = static_cast<int>(k);
+      }
+    }
+  }
+  return excursion;
+}
+
+Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses) {
+  Pose pose;
+  for (const Bone& bone : scene.bones) {
+    const auto current = link_poses.find(bone.name);
+    const auto rest = scene.rest_link_poses.find(bone.name);
+    if (current == link_poses.end() || rest == scene.rest_link_poses.end()) continue;  // stays at rest
+    pose.bone_transforms[bone.name] = current->second * rest->second.inverse();
+  }
+  return pose;
+}
+
+}  // namespace muscle_deformation

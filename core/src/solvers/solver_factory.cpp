@@ -1,0 +1,17 @@
+#include "muscle_deformation/core/solvers/solver_factory.hpp"
+
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+std::unique_ptr<SoftBodySolver> makeSolver(const SolverChoice& choice, const MassSpringSystem& system) {
+  switch (choice.kind) {
+    case SolverKind::verlet:
+      return std::make_unique<VerletSolver>(system, choice.verlet);
+    case SolverKind::local_global:
+      return std::make_unique<LocalGlobalSolver>(system, choice.local_global);
+  }
+  throw std::invalid_argument("unknown solver kind " + std::to_string(static_cast<int>(choice.kind)));
+}
+
+}  // namespace muscle_deformation

@@ -1,0 +1,114 @@
+// The pipeline the node runs per pose: solve, then skin and measure only what the caller asks for.
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace muscle_deformation;
+
+namespace {
+
+PipelineSettings smallSettings() {
+  PipelineSettings settings;
+  settings.simulation.model.particles_per_fibre = 10;
+  settings.simulation.model.nearest_neighbours = 8;
+  settings.simulation.solver.max_iterations = 30;
+  return settings;
+}
+
+std::vector<MuscleDescription> descriptionsOf(const std::vector<Muscle>& muscles) {
+  std::vector<MuscleDescription> descriptions;
+  for (const Muscle& muscle : muscles) descriptions.push_back({muscle.name, "", "", "pelvis", "tibia", {}, {}});
+  return descriptions;
+}
+
+DeformationPipeline twoMusclePipeline(const PipelineSettings& settings, SyntheticScene scene = makeSyntheticThigh(2, 4)) {
+  std::vector<MuscleDescription> descriptions = descriptionsOf(scene.muscles);
+  return DeformationPipeline(std::move(descriptions), std::move(scene.muscles), std::move(scene.bones), settings);
+}
+
+}  // namespace
+
+TEST(DeformationPipeline, SkinsAndMeasuresOnlyWhatTheCallerAsksFor) {
+  const SyntheticScene scene = makeSyntheticThigh(2, 4);
+  DeformationPipeline pipeline = twoMusclePipeline(smallSettings(), scene);
+  ASSERT_TRUE(pipeline.skinningProblem().empty()) << pipeline.skinningProblem();
+  ASSERT_TRUE(pipeline.metricsProblem().empty()) << pipeline.metricsProblem();
+  const Pose pose = syntheticThighPose(0.3, 0.2);
+
+  const PipelineFrame& bare = pipeline.solve(pose, StartMode::cold, false, false);
+  EXPECT_TRUE(bare.solve.finite);
+  EXPECT_EQ(bare.solve.solve.iterations, 30);
+  EXPECT_FALSE(bare.has_surfaces);
+  EXPECT_FALSE(bare.has_metrics);
+  const BoneTransforms expected = boneTransformsOf(pipeline.simulation().bones(), pose);
+  ASSERT_EQ(bare.bone_transforms.size(), expected.size());
+  for (std::size_t b = 0; b < expected.size(); ++b)
+    EXPECT_TRUE(bare.bone_transforms[b].isApprox(expected[b], 0.0)) << "bone " << b;
+
+  const PipelineFrame& skinned = pipeline.solve(pose, StartMode::warm, true, false);
+  EXPECT_TRUE(skinned.solve.warm_started);
+  ASSERT_TRUE(skinned.has_surfaces);
+  EXPECT_FALSE(skinned.has_metrics);
+  ASSERT_EQ(skinned.surfaces.size(), 2u);
+  for (std::size_t m = 0; m < 2; ++m) {
+    EXPECT_EQ(skinned.surfaces[m].cols(), scene.muscles[m].surface.vertexCount());
+    EXPECT_TRUE(skinned.surfaces[m].allFinite());
+  }
+
+  // Metrics need surfaces, so asking for metrics alone skins too.
+  const PipelineFrame& measured = pipeline.solve(pose, StartMode::warm, false, true);
+  EXPECT_TRUE(measured.has_surfaces);
+  ASSERT_TRUE(measured.has_metrics);
+  ASSERT_EQ(measured.metrics.muscles.size(), 2u);
+  EXPECT_TRUE(std::isfinite(measured.metrics.volume_error_mean_pct));
+  EXPECT_GE(measured.metrics.volume_error_max_pct, measured.metrics.volume_error_mean_pct);
+}
+
+TEST(DeformationPipeline, ParticlesAreExactlyThoseOfTheSimulationItWraps) {
+  const PipelineSettings settings = smallSettings();
+  DeformationPipeline pipeline = twoMusclePipeline(settings);
+  SyntheticScene scene = makeSyntheticThigh(2, 4);
+  MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings.simulation);
+  for (const double hip : {0.2, 0.4}) {
+    const Pose pose = syntheticThighPose(hip, 0.1);
+    pipeline.solve(pose, StartMode::warm, true, true);
+    simulation.solve(pose, StartMode::warm);
+    EXPECT_EQ(pipeline.simulation().state().position, simulation.state().position) << "hip " << hip;
+  }
+}
+
+TEST(DeformationPipeline, AnOpenMuscleSurfaceTurnsSurfacesOffWithTheReasonAndTheParticlesStillSolve) {
+  SyntheticScene scene = makeSyntheticThigh(2, 4);
+  TriangleMesh& surface = scene.muscles[1].surface;
+  surface.triangles.conservativeResize(Eigen::NoChange, surface.triangleCount() - 1);  // a hole
+  DeformationPipeline pipeline = twoMusclePipeline(smallSettings(), scene);
+  EXPECT_NE(pipeline.skinningProblem().find("not a closed 2-manifold"), std::string::npos)
+      << pipeline.skinningProblem();
+  EXPECT_NE(pipeline.metricsProblem().find("needs the surface skinning"), std::string::npos)
+      << pipeline.metricsProblem();
+  EXPECT_EQ(pipeline.skinning(), nullptr);
+  EXPECT_EQ(pipeline.metrics(), nullptr);
+  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_TRUE(frame.solve.finite);
+  EXPECT_FALSE(frame.has_surfaces);
+  EXPECT_FALSE(frame.has_metrics);
+  EXPECT_NE(pipeline.describe().find("no surfaces: "), std::string::npos) << pipeline.describe();
+}
+
+TEST(DeformationPipeline, SurfacesAndMetricsTurnedOffBySettingsSaySo) {
+  PipelineSettings settings = smallSettings();
+  settings.skin_surfaces = false;
+  settings.measure_fidelity = false;
+  DeformationPipeline pipeline = twoMusclePipeline(settings);
+  EXPECT_EQ(pipeline.skinningProblem(), "surface skinning disabled by the settings");
+  EXPECT_EQ(pipeline.metricsProblem(), "fidelity metrics disabled by the settings");
+  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_FALSE(frame.has_surfaces);
+  EXPECT_FALSE(frame.has_metrics);
+  const std::string description = pipeline.describe();
+  EXPECT_NE(description.find("2 muscles, 3 bones"), std::string::npos) << description;
+  EXPECT_NE(description.find("solver verlet"), std::string::npos) << description;
+}

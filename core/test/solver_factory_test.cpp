@@ -1,0 +1,67 @@
+// Every solver behind the one interface: the factory builds the kind asked, and MuscleSimulation's answer is exactly
+// the factory solver's answer from the same start.
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/solver_factory.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+using namespace muscle_deformation;
+
+namespace {
+
+SimulationSettings smallSettings(SolverKind kind) {
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.model.nearest_neighbours = 8;
+  settings.solver_kind = kind;
+  settings.solver.max_iterations = 25;
+  settings.local_global.max_iterations = 6;
+  settings.collisions = false;  // the solver alone
+  return settings;
+}
+
+}  // namespace
+
+TEST(SolverFactory, BuildsTheKindAskedAndNamesIt) {
+  const SyntheticScene scene = makeSyntheticThigh(1, 4);
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{});
+  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global}) {
+    const std::unique_ptr<SoftBodySolver> solver = makeSolver(SolverChoice{kind, {}, {}}, system);
+    ASSERT_NE(solver, nullptr);
+    EXPECT_EQ(solver->kind(), kind);
+    EXPECT_EQ(solverKindFromString(toString(kind)), kind);
+  }
+  EXPECT_THROW(solverKindFromString("pbd"), std::invalid_argument);
+}
+
+TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStart) {
+  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global}) {
+    const SimulationSettings settings = smallSettings(kind);
+    SyntheticScene scene = makeSyntheticThigh(2, 4);
+    const Pose pose = syntheticThighPose(0.35, 0.25);
+
+    const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings.model);
+    ParticleState state = restState(system);
+    rigidPretransform(system, boneTransformsOf(scene.bones, pose), state);
+    const std::unique_ptr<SoftBodySolver> solver =
+        makeSolver(SolverChoice{kind, settings.solver, settings.local_global}, system);
+    const SolveStats direct = solver->solve(state);
+
+    MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);
+    const FrameStats through_simulation = simulation.solve(pose, StartMode::cold);
+    EXPECT_EQ(through_simulation.solve.iterations, direct.iterations) << toString(kind);
+    EXPECT_EQ(simulation.state().position, state.position) << toString(kind);
+  }
+}
+
+TEST(SolverFactory, NewStoppingReachesWhicheverSolverRuns) {
+  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global}) {
+    SyntheticScene scene = makeSyntheticThigh(1, 4);
+    MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), smallSettings(kind));
+    simulation.setStopping(StoppingRule::iterations, 3, 1e-6, 16.0, SolveLimits{});
+    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solve.iterations, 3) << toString(kind);
+  }
+}
