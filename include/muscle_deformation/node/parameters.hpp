@@ -5,7 +5,10 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
 #include <ros/node_handle.h>
+#include <xmlrpcpp/XmlRpcValue.h>
 
+#include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -42,7 +45,43 @@ struct NodeSettings {
   ServiceSettings service;
 };
 
+// Where the node's parameters come from: the parameter server in the node, a plain map in tests (no roscore).
+class ParameterSource {
+ public:
+  virtual ~ParameterSource() = default;
+  // False when `name` is not set; otherwise its raw value.
+  virtual bool get(const std::string& name, XmlRpc::XmlRpcValue& value) const = 0;
+  // The name as the user knows it (resolved in the node's namespace), for error messages.
+  virtual std::string fullName(const std::string& name) const = 0;
+};
+
+class NodeHandleParameters : public ParameterSource {
+ public:
+  explicit NodeHandleParameters(const ros::NodeHandle& node) : node_(node) {}
+  bool get(const std::string& name, XmlRpc::XmlRpcValue& value) const override;
+  std::string fullName(const std::string& name) const override { return node_.resolveName(name); }
+
+ private:
+  const ros::NodeHandle& node_;
+};
+
+// Parameters from a map; remembers every name asked for, so a test can tell documented parameters the node ignores.
+class MapParameters : public ParameterSource {
+ public:
+  explicit MapParameters(std::map<std::string, XmlRpc::XmlRpcValue> values, std::string node_name = "/node")
+      : values_(std::move(values)), node_name_(std::move(node_name)) {}
+  bool get(const std::string& name, XmlRpc::XmlRpcValue& value) const override;
+  std::string fullName(const std::string& name) const override { return node_name_ + "/" + name; }
+  const std::set<std::string>& asked() const { return asked_; }
+
+ private:
+  std::map<std::string, XmlRpc::XmlRpcValue> values_;
+  std::string node_name_;
+  mutable std::set<std::string> asked_;
+};
+
 // Throws std::invalid_argument naming the parameter and what is wrong.
+NodeSettings readNodeSettings(const ParameterSource& parameters, const std::string& package_root);
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
 
 // The node's one set of stopping parameters (stopping_rule, max_iterations, tolerances) drives whichever solver runs:

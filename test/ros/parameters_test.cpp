@@ -1,0 +1,191 @@
+// The node's parameter reader on a plain parameter map (no roscore): types, ranges, messages, and the documented
+// config/muscle_deformation.yaml agreeing with the defaults the code holds.
+#include "muscle_deformation/node/parameters.hpp"
+
+#include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
+
+#include <regex>
+
+namespace md = muscle_deformation;
+namespace node = muscle_deformation::node;
+
+namespace {
+
+const std::string kPackageRoot = MD_PACKAGE_DIR;
+
+// rosparam's typing of a YAML scalar: booleans, integers, floating-point numbers, else strings.
+XmlRpc::XmlRpcValue toXmlRpc(const YAML::Node& yaml) {
+  if (yaml.IsSequence()) {
+    XmlRpc::XmlRpcValue array;
+    array.setSize(static_cast<int>(yaml.size()));
+    for (std::size_t i = 0; i < yaml.size(); ++i) array[static_cast<int>(i)] = toXmlRpc(yaml[i]);
+    return array;
+  }
+  const std::string text = yaml.as<std::string>();
+  if (text == "true" || text == "false") return XmlRpc::XmlRpcValue(text == "true");
+  if (std::regex_match(text, std::regex("[-+]?[0-9]+"))) return XmlRpc::XmlRpcValue(std::stoi(text));
+  if (std::regex_match(text, std::regex("[-+]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][-+]?[0-9]+)?")))
+    return XmlRpc::XmlRpcValue(std::stod(text));
+  return XmlRpc::XmlRpcValue(text);
+}
+
+std::map<std::string, XmlRpc::XmlRpcValue> documentedParameters() {
+  std::map<std::string, XmlRpc::XmlRpcValue> values;
+  for (const auto& entry : YAML::LoadFile(kPackageRoot + "/config/muscle_deformation.yaml"))
+    values[entry.first.as<std::string>()] = toXmlRpc(entry.second);
+  return values;
+}
+
+XmlRpc::XmlRpcValue names(std::initializer_list<const char*> list) {
+  XmlRpc::XmlRpcValue array;
+  array.setSize(static_cast<int>(list.size()));
+  int i = 0;
+  for (const char* name : list) array[i++] = std::string(name);
+  return array;
+}
+
+std::string errorOf(std::map<std::string, XmlRpc::XmlRpcValue> values) {
+  try {
+    node::readNodeSettings(node::MapParameters(std::move(values), "/muscle_deformation"), kPackageRoot);
+  } catch (const std::invalid_argument& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(Parameters, TheDocumentedFileHoldsTheDefaultsAndNamesEveryParameterTheNodeReads) {
+  const auto documented = documentedParameters();
+  node::MapParameters parameters(documented);
+  const node::NodeSettings from_file = node::readNodeSettings(parameters, kPackageRoot);
+  const node::NodeSettings defaults = node::readNodeSettings(node::MapParameters({}), kPackageRoot);
+
+  for (const auto& [name, value] : documented)
+    EXPECT_TRUE(parameters.asked().count(name)) << name << " is documented but the node never reads it";
+  for (const std::string& name : parameters.asked()) {
+    const bool explained_elsewhere = name == "scene"                                         // a launch argument
+                                     || name == "reset_translation_m" || name == "reset_rotation_rad";  // replaced
+    if (!explained_elsewhere) EXPECT_TRUE(documented.count(name)) << name << " is read but not documented";
+  }
+
+  // "Every value below is the node's default": the file changes nothing.
+#define EXPECT_SAME(field) EXPECT_EQ(from_file.field, defaults.field) << #field
+  EXPECT_SAME(scene_path);
+  EXPECT_SAME(muscles);
+  EXPECT_SAME(fixed_frame);
+  EXPECT_SAME(max_solve_time_s);
+  EXPECT_SAME(pipeline.simulation.model.particles_per_fibre);
+  EXPECT_SAME(pipeline.simulation.model.spring_layout);
+  EXPECT_SAME(pipeline.simulation.model.nearest_neighbours);
+  EXPECT_SAME(pipeline.simulation.model.attachment_distance_m);
+  EXPECT_SAME(pipeline.simulation.model.fix_fibre_ends);
+  EXPECT_SAME(pipeline.simulation.model.spring_material_n);
+  EXPECT_SAME(pipeline.simulation.model.density_kg_per_m3);
+  EXPECT_SAME(pipeline.simulation.solver.mass_rule);
+  EXPECT_SAME(pipeline.simulation.solver.dt_rule);
+  EXPECT_SAME(pipeline.simulation.solver.dt_s);
+  EXPECT_SAME(pipeline.simulation.solver.dt_min_s);
+  EXPECT_SAME(pipeline.simulation.solver.damping_scale);
+  EXPECT_SAME(pipeline.simulation.solver.stopping_rule);
+  EXPECT_SAME(pipeline.simulation.solver.max_iterations);
+  EXPECT_SAME(pipeline.simulation.solver.displacement_tolerance_m);
+  EXPECT_SAME(pipeline.simulation.solver.time_budget_ms);
+  EXPECT_SAME(pipeline.simulation.solver_kind);
+  EXPECT_SAME(pipeline.simulation.local_global.volume_weight);
+  EXPECT_SAME(pipeline.simulation.local_global.chebyshev_rho);
+  EXPECT_SAME(pipeline.simulation.local_global.lbfgs_history);
+  EXPECT_SAME(pipeline.simulation.collisions);
+  EXPECT_SAME(pipeline.simulation.collision.broad_phase);
+  EXPECT_SAME(pipeline.simulation.collision.bone_reach_margin_m);
+  EXPECT_SAME(pipeline.skin_surfaces);
+  EXPECT_SAME(pipeline.measure_fidelity);
+  EXPECT_SAME(pipeline.skinning.method);
+  EXPECT_SAME(pipeline.skinning.nearest_particles);
+  EXPECT_SAME(pipeline.skinning.cage);
+  EXPECT_SAME(service.solver_kind);
+  EXPECT_SAME(service.lbfgs_history);
+  EXPECT_SAME(service.max_iterations);
+  EXPECT_SAME(service.max_queued);
+  EXPECT_SAME(service.warm_max_translation_m);
+  EXPECT_SAME(service.warm_max_rotation_rad);
+  EXPECT_SAME(stream.policy.warm_start);
+  EXPECT_SAME(stream.policy.max_bone_speed_m_per_s);
+  EXPECT_SAME(stream.policy.max_bone_angular_speed_rad_per_s);
+  EXPECT_SAME(stream.policy.unchanged_translation_m);
+  EXPECT_SAME(stream.policy.unchanged_rotation_rad);
+  EXPECT_SAME(stream.tf_wait_s);
+  EXPECT_SAME(stream.colour_fibres_by_strain);
+  EXPECT_SAME(stream.surface_alpha);
+  EXPECT_SAME(stream.stats_metrics);
+  EXPECT_SAME(stream.expected_rate_hz);
+#undef EXPECT_SAME
+}
+
+TEST(Parameters, ValuesOfEveryKindAreReadIntoTheSettings) {
+  const node::NodeSettings settings = node::readNodeSettings(
+      node::MapParameters({{"particles_per_fibre", XmlRpc::XmlRpcValue(12)},
+                           {"max_iterations", XmlRpc::XmlRpcValue(40.0)},  // a float with no fraction is an integer
+                           {"attachment_distance_m", XmlRpc::XmlRpcValue(0)},  // an integer where a number is asked
+                           {"fix_fibre_ends", XmlRpc::XmlRpcValue(false)},
+                           {"solver", XmlRpc::XmlRpcValue(std::string("local_global"))},
+                           {"stopping_rule", XmlRpc::XmlRpcValue(std::string("displacement"))},
+                           {"muscles", names({"thigh13", "iliacus"})},
+                           {"surface_alpha", XmlRpc::XmlRpcValue(0.25)}}),
+      kPackageRoot);
+  EXPECT_EQ(settings.pipeline.simulation.model.particles_per_fibre, 12);
+  EXPECT_EQ(settings.pipeline.simulation.solver.max_iterations, 40);
+  EXPECT_EQ(settings.pipeline.simulation.model.attachment_distance_m, 0.0);
+  EXPECT_FALSE(settings.pipeline.simulation.model.fix_fibre_ends);
+  EXPECT_EQ(settings.pipeline.simulation.solver_kind, md::SolverKind::local_global);
+  EXPECT_EQ(settings.muscles, (std::vector<std::string>{"thigh13", "iliacus"}));
+  EXPECT_FLOAT_EQ(settings.stream.surface_alpha, 0.25f);
+  // One stopping rule drives whichever solver runs.
+  EXPECT_EQ(settings.pipeline.simulation.local_global.stopping_rule, md::StoppingRule::displacement);
+  EXPECT_EQ(settings.pipeline.simulation.local_global.max_iterations, 40);
+
+  const node::NodeSettings single =
+      node::readNodeSettings(node::MapParameters({{"muscles", XmlRpc::XmlRpcValue(std::string("thigh13"))}}), kPackageRoot);
+  EXPECT_EQ(single.muscles, std::vector<std::string>{"thigh13"});
+  const node::NodeSettings none =
+      node::readNodeSettings(node::MapParameters({{"muscles", XmlRpc::XmlRpcValue(std::string(""))}}), kPackageRoot);
+  EXPECT_TRUE(none.muscles.empty());
+}
+
+TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
+  const std::string prefix = "parameter /muscle_deformation/";
+  EXPECT_EQ(errorOf({{"particles_per_fibre", XmlRpc::XmlRpcValue(20.5)}}),
+            prefix + "particles_per_fibre is 20.500000, must be an integer");
+  EXPECT_EQ(errorOf({{"particles_per_fibre", XmlRpc::XmlRpcValue(1)}}),
+            prefix + "particles_per_fibre is 1, must be in [2, 10000]");
+  EXPECT_EQ(errorOf({{"particles_per_fibre", XmlRpc::XmlRpcValue(std::string("many"))}}),
+            prefix + "particles_per_fibre must be an integer");
+  EXPECT_EQ(errorOf({{"surface_alpha", XmlRpc::XmlRpcValue(1.5)}}),
+            prefix + "surface_alpha is 1.500000, must be in [0.000000, 1.000000]");
+  EXPECT_EQ(errorOf({{"dt_s", XmlRpc::XmlRpcValue(true)}}), prefix + "dt_s must be a number");
+  EXPECT_EQ(errorOf({{"collisions", XmlRpc::XmlRpcValue(1)}}), prefix + "collisions has the wrong type");
+  EXPECT_EQ(errorOf({{"fixed_frame", XmlRpc::XmlRpcValue(std::string(""))}}), prefix + "fixed_frame must not be empty");
+  EXPECT_EQ(errorOf({{"muscles", XmlRpc::XmlRpcValue(3)}}), prefix + "muscles must be a list of muscle names or tags");
+  XmlRpc::XmlRpcValue mixed = names({"thigh13", "x"});
+  mixed[1] = 4;
+  EXPECT_EQ(errorOf({{"muscles", mixed}}), prefix + "muscles must be a list of muscle names or tags");
+
+  const std::string unknown_rule = errorOf({{"stopping_rule", XmlRpc::XmlRpcValue(std::string("forever"))}});
+  EXPECT_EQ(unknown_rule, prefix + "stopping_rule 'forever' is not one of: iterations, displacement, time_budget");
+  const std::string replaced = errorOf({{"reset_translation_m", XmlRpc::XmlRpcValue(0.1)}});
+  EXPECT_EQ(replaced.rfind(prefix + "reset_translation_m no longer exists", 0), 0u) << replaced;
+  EXPECT_NE(replaced.find("max_bone_speed_m_per_s"), std::string::npos) << replaced;
+
+  // The local/global settings are checked only for a solver that uses them, naming the parameter to change.
+  const std::string stream_problem = errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("local_global"))},
+                                              {"lbfgs_history", XmlRpc::XmlRpcValue(8)},
+                                              {"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}});
+  EXPECT_EQ(stream_problem.rfind(prefix + "lbfgs_history ", 0), 0u) << stream_problem;
+  EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("verlet"))},
+                     {"service_solver", XmlRpc::XmlRpcValue(std::string("verlet"))},
+                     {"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}}),
+            "");
+  const std::string service_problem = errorOf({{"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}});
+  EXPECT_EQ(service_problem.rfind(prefix + "service_lbfgs_history ", 0), 0u) << service_problem;
+}
