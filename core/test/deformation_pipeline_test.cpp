@@ -112,3 +112,19 @@ TEST(DeformationPipeline, SurfacesAndMetricsTurnedOffBySettingsSaySo) {
   EXPECT_NE(description.find("2 muscles, 3 bones"), std::string::npos) << description;
   EXPECT_NE(description.find("solver verlet"), std::string::npos) << description;
 }
+
+TEST(DeformationPipeline, AFrameFromBoneTransformsIsTheFrameFromThePose) {
+  DeformationPipeline from_pose = twoMusclePipeline(smallSettings());
+  DeformationPipeline from_transforms = twoMusclePipeline(smallSettings());
+  for (const double hip : {0.2, 0.5}) {
+    const Pose pose = syntheticThighPose(hip, 0.3);
+    const BoneTransforms transforms = boneTransformsOf(from_transforms.simulation().bones(), pose);
+    const PipelineFrame& a = from_pose.solve(pose, StartMode::warm, true, false);
+    const PipelineFrame& b = from_transforms.solve(transforms, StartMode::warm, true, false);
+    EXPECT_EQ(from_pose.simulation().state().position, from_transforms.simulation().state().position);
+    ASSERT_TRUE(a.has_surfaces && b.has_surfaces);
+    EXPECT_EQ(a.surfaces[0], b.surfaces[0]);
+  }
+  const BoneTransforms too_few(1, Eigen::Isometry3d::Identity());
+  EXPECT_THROW(from_transforms.solve(too_few, StartMode::cold, false, false), std::invalid_argument);
+}

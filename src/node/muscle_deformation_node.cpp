@@ -310,7 +310,7 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const bool want_surface_markers = surface_markers_pub_.getNumSubscribers() > 0;
   const bool want_stats = stats_pub_.getNumSubscribers() > 0;
   const StartMode start = decision.start == StreamStart::warm ? StartMode::warm : StartMode::cold;
-  const PipelineFrame& frame = stream_->solve(pose, start, want_surfaces || want_surface_markers,
+  const PipelineFrame& frame = stream_->solve(transforms, start, want_surfaces || want_surface_markers,
                                               want_stats && settings_.stream.stats_metrics);
   if (frame.solve.finite && !frame.solve.solve.diverged)
     stream_policy_->accept(link_poses.stamp.toSec(), transforms);
@@ -556,7 +556,7 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     }
     if (!cold_reason.empty()) pipeline.reset();
   }
-  const PipelineFrame& frame = pipeline.solve(pose, request.warm_start && cold_reason.empty() ? StartMode::warm
+  const PipelineFrame& frame = pipeline.solve(transforms, request.warm_start && cold_reason.empty() ? StartMode::warm
                                                                                                : StartMode::cold,
                                               true, pipeline.metrics() != nullptr);
   service_has_previous_ = frame.solve.finite && !frame.solve.solve.diverged && !frame.solve.solve.cancelled;

@@ -44,8 +44,13 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
 
 const PipelineFrame& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
                                                 bool want_metrics) {
-  frame_.solve = simulation_->solve(pose, start);
-  frame_.bone_transforms = boneTransformsOf(simulation_->bones(), pose);
+  return solve(boneTransformsOf(simulation_->bones(), pose), start, want_surfaces, want_metrics);
+}
+
+const PipelineFrame& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces,
+                                                bool want_metrics) {
+  frame_.solve = simulation_->solve(transforms, start);
+  frame_.bone_transforms = transforms;
   frame_.has_surfaces = false;
   frame_.has_metrics = false;
   frame_.skinning_ms = 0;

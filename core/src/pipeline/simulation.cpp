@@ -38,7 +38,13 @@ void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double
 }
 
 FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
-  const BoneTransforms transforms = boneTransformsOf(bones_, pose);
+  return solve(boneTransformsOf(bones_, pose), start);
+}
+
+FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start) {
+  if (transforms.size() != bones_.size())
+    throw std::invalid_argument("pose has " + std::to_string(transforms.size()) + " bone transforms for " +
+                                std::to_string(bones_.size()) + " bones");
   for (const Eigen::Isometry3d& transform : transforms)
     if (!transform.matrix().allFinite()) throw std::invalid_argument("pose has a non-finite bone transform");
   FrameStats stats;

@@ -42,6 +42,9 @@ class DeformationPipeline {
 
   // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
   const PipelineFrame& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
+  // The same from bone transforms (boneTransformsOf(simulation().bones(), pose)), computed once per frame by callers
+  // that also need them (the stream policy, the service's warm-start check).
+  const PipelineFrame& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics);
   void reset() { simulation_->reset(); }
   // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,

@@ -46,6 +46,9 @@ class MuscleSimulation {
   MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings);
 
   FrameStats solve(const Pose& pose, StartMode start);
+  // The same with the pose already turned into bone transforms (boneTransformsOf(bones(), pose)), for callers that
+  // need them anyway: a frame computes them once.
+  FrameStats solve(const BoneTransforms& transforms, StartMode start);
   void reset();  // forget the previous result: the next solve starts cold
   // Changes how later solves stop, for whichever solver runs (no rebuild): rule, iteration cap, tolerances, limits.
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
