@@ -8,6 +8,7 @@
 // 2 = fibres written but some check failed (listed on stdout).
 #include "muscle_deformation/preprocessing/fibre_generator.hpp"
 #include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/io/surface_repair.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 
 #include <chrono>
@@ -48,6 +49,8 @@ const char* const kUsage =
     "  --min-separation M  reseed one of two fibres closer than M metres (default 2e-5)\n"
     "  --decimals N      decimal places of the written coordinates in metres (default 5 = 10 um)\n"
     "  --scale S         multiply input coordinates by S to get metres (default 1; 0.001 for mm)\n"
+    "  --no-repair       refuse a muscle surface that is not closed instead of repairing it (holes, non-manifold\n"
+    "                    edges, degenerate or flipped triangles, loose pieces; every change is printed)\n"
     "  --help            this text\n";
 
 double parseNumber(const std::string& option, const std::string& text) {
@@ -137,6 +140,21 @@ std::string jsonEntry(const std::string& name, const md::FibreGenerationResult& 
   return o.str();
 }
 
+struct LoadedSurface {
+  md::TriangleMesh mesh;
+  bool repaired = false;
+};
+
+// Scene preparation repairs what it can (and says what it changed): real segmentations often have a few defects.
+LoadedSurface loadMuscleSurface(const std::string& path, double scale, bool repair, const std::string& muscle) {
+  if (!repair) return {md::loadClosedSurface(path, scale), false};
+  md::SurfaceRepairReport report;
+  LoadedSurface loaded{md::loadRepairedClosedSurface(path, scale, report), report.changed()};
+  if (loaded.repaired)
+    std::cout << (muscle.empty() ? "" : muscle + ": ") << path << " repaired: " << report.describe() << "\n";
+  return loaded;
+}
+
 int run(int argc, char** argv) {
   std::map<std::string, std::string> args;
   for (int i = 1; i < argc; ++i) {
@@ -144,6 +162,10 @@ int run(int argc, char** argv) {
     if (key == "--help" || key == "-h") {
       std::cout << kUsage;
       std::exit(0);
+    }
+    if (key == "--no-repair") {  // the one option without a value
+      args[key] = "";
+      continue;
     }
     static const char* const known[] = {"--surface", "--origin-bone", "--insertion-bone", "--out", "--fibres",
                                         "--voxel", "--min-voxels", "--min-separation", "--decimals", "--points", "--attach", "--scale", "--scene",
@@ -187,7 +209,7 @@ int run(int argc, char** argv) {
       if (has(k)) throw UsageError(std::string(k) + " is for --scene mode");
     if (!has("--out")) throw UsageError("--out FIBRES.vtk is required with --surface");
     const Timer timer;
-    const md::TriangleMesh surface = md::loadClosedSurface(args["--surface"], scale);
+    const md::TriangleMesh surface = loadMuscleSurface(args["--surface"], scale, !has("--no-repair"), "").mesh;
     md::TriangleMesh origin, insertion;
     if (has("--origin-bone")) origin = md::loadTriangleMesh(args["--origin-bone"], scale);
     if (has("--insertion-bone")) insertion = md::loadTriangleMesh(args["--insertion-bone"], scale);
@@ -223,7 +245,12 @@ int run(int argc, char** argv) {
   std::vector<std::string> entries, failed;
   for (const md::MuscleDescription& m : muscles) {
     const Timer timer;
-    const md::TriangleMesh surface = md::loadClosedSurface(md::resolveScenePath(m.surface_file, package));
+    const LoadedSurface loaded =
+        loadMuscleSurface(md::resolveScenePath(m.surface_file, package), 1.0, !has("--no-repair"), m.name);
+    const md::TriangleMesh& surface = loaded.mesh;
+    if (loaded.repaired && !scene.repair_surfaces)
+      std::cout << m.name << ": set 'repair_surfaces: true' in " << args["--scene"]
+                << " so that the node repairs the surface the same way\n";
     md::FibreGenerationResult result;
     try {
       result = md::generateFibres(surface, boneOf(m.origin_bone, m.name), boneOf(m.insertion_bone, m.name), options);

@@ -445,3 +445,46 @@ TEST(Scene, FibresFarOutsideTheirMuscleAreRefusedNamingMuscleFibreDistanceAndTol
   EXPECT_CONTAINS(message, "mm outside the muscle's surface");
   EXPECT_CONTAINS(message, "at most 5 mm outside");
 }
+
+TEST(Scene, AMuscleSurfaceWithAHoleIsRefusedPointingAtTheRepairAndRepairedWhenTheSceneAsks) {
+  md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  md::MuscleDescription& muscle = description.muscles[0];
+  const md::TriangleMesh intact = md::loadClosedSurface(md::resolveScenePath(muscle.surface_file, kPackage));
+  md::TriangleMesh holed = intact;
+  holed.triangles = intact.triangles.leftCols(intact.triangleCount() - 1);  // one triangle missing, as segmenters do
+  const std::string path = (fs::temp_directory_path() / "md_scene_test_holed_muscle.stl").string();
+  md::saveTriangleMeshStl(path, holed);
+  muscle.surface_file = path;
+
+  const std::string refusal = md::testing::errorMessageOf<md::LoadError>(
+      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+  EXPECT_CONTAINS(refusal, path);
+  EXPECT_CONTAINS(refusal, "3 boundary edges");
+  EXPECT_CONTAINS(refusal, "repair_surfaces: true");
+
+  description.repair_surfaces = true;
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {muscle.name});
+  ASSERT_EQ(scene.repairs.size(), 1u);
+  EXPECT_CONTAINS(scene.repairs[0], "muscle '" + muscle.name + "'");
+  EXPECT_CONTAINS(scene.repairs[0], "triangles added to close holes: 1");
+  EXPECT_TRUE(md::checkSurfaceTopology(scene.muscles[0].surface).closedManifold());
+  EXPECT_NEAR(md::enclosedVolume(scene.muscles[0].surface), md::enclosedVolume(intact), 1e-12);
+}
+
+TEST(Scene, RepairSurfacesKeyIsABoolean) {
+  const std::string scene_text = "urdf: urdf/right_hip_thigh.urdf\nframe: pelvis\nrepair_surfaces: %s\nmuscles:\n"
+                                 "  - {name: a, surface: a.stl, fibres: a.vtk, origin_bone: pelvis, insertion_bone: femur_r}\n";
+  auto withRepair = [&](const std::string& value) {
+    std::string text = scene_text;
+    text.replace(text.find("%s"), 2, value);
+    return writeTemp("repair_" + std::to_string(value.size()) + ".yaml", text);
+  };
+  EXPECT_TRUE(md::loadSceneDescription(withRepair("true")).repair_surfaces);
+  EXPECT_FALSE(md::loadSceneDescription(withRepair("false")).repair_surfaces);
+  const std::string message =
+      md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(withRepair("maybe")); });
+  EXPECT_CONTAINS(message, "line 3");
+  EXPECT_CONTAINS(message, "'repair_surfaces' must be true or false");
+}

@@ -89,6 +89,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
                                                << "'");
   ROS_INFO_STREAM("muscle_deformation: built " << stream_->describe() << "; startup " << startup_ms << " ms");
+  for (const std::string& repair : scene_.repairs) ROS_WARN_STREAM("muscle_deformation: " << repair);
   for (const std::string& warning : stream_->simulation().buildReport().warnings)
     ROS_WARN_STREAM("muscle_deformation: " << warning);
   if (!stream_->skinning()) ROS_WARN_STREAM("muscle_deformation: ~surfaces disabled: " << stream_->skinningProblem());

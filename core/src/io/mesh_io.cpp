@@ -1488,7 +1488,9 @@ TriangleMesh loadClosedSurface(const std::string& path, double scale_to_metres) 
   TriangleMesh mesh = loadTriangleMesh(path, scale_to_metres);
   const SurfaceTopologyReport report = checkSurfaceTopology(mesh);
   if (!report.closedManifold()) {
-    fail(path, "is not a closed, consistently oriented 2-manifold surface: " + report.describe());
+    fail(path, "is not a closed, consistently oriented 2-manifold surface: " + report.describe() +
+                   " (small defects can be repaired: the scene's repair_surfaces: true, or generate_fibres without "
+                   "--no-repair)");
   }
   return mesh;
 }

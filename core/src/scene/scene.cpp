@@ -1,8 +1,9 @@
 // The scene half of scene loading: URI resolution, the scene YAML, and assembling bones and muscles at rest.
 #include "muscle_deformation/core/scene/scene.hpp"
 
-#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/io/surface_repair.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 
 #include <yaml-cpp/yaml.h>
 
@@ -133,6 +134,13 @@ SceneDescription loadSceneDescription(const std::string& yaml_path) {
   scene.path = yaml_path;
   scene.urdf_file = requiredString(root, "urdf", yaml_path, "the scene");
   scene.frame = requiredString(root, "frame", yaml_path, "the scene");
+  if (const YAML::Node repair = root["repair_surfaces"]; repair.IsDefined() && !repair.IsNull()) {
+    try {
+      scene.repair_surfaces = repair.as<bool>();
+    } catch (const YAML::Exception&) {
+      throw SceneError(where(yaml_path, repair.Mark()) + ": 'repair_surfaces' must be true or false");
+    }
+  }
   const YAML::Node muscles = root["muscles"];
   if (!muscles.IsDefined() || muscles.IsNull()) {
     throw SceneError(where(yaml_path, root.Mark()) + ": the scene has no 'muscles' key");
@@ -299,7 +307,14 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     } catch (const SceneError& e) {
       throw SceneError(description.path + ": muscle '" + m.name + "': " + e.what());
     }
-    muscle.surface = loadClosedSurface(surface_path);
+    if (description.repair_surfaces) {
+      SurfaceRepairReport repair;
+      muscle.surface = loadRepairedClosedSurface(surface_path, 1.0, repair);
+      if (repair.changed())
+        scene.repairs.push_back("muscle '" + m.name + "': " + surface_path + " repaired: " + repair.describe());
+    } else {
+      muscle.surface = loadClosedSurface(surface_path);
+    }
     if (!fs::is_regular_file(fibre_path)) {
       throw SceneError(description.path + ": fibre file of muscle '" + m.name + "' does not exist: " + fibre_path +
                        " (make it with generate_fibres --scene " + description.path + ")");

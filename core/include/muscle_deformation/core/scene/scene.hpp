@@ -101,6 +101,9 @@ struct SceneDescription {
   std::string urdf_file;   // `urdf:` key, relative to the package root
   std::string frame;       // `frame:` key: the link whose frame the muscle files use (the fixed frame at zero)
   std::vector<MuscleDescription> muscles;
+  // `repair_surfaces:` key (default false): muscle surfaces that are not closed are repaired on loading
+  // (io/surface_repair.hpp) instead of refused; Scene::repairs says what changed.
+  bool repair_surfaces = false;
 };
 
 // Reads the YAML; every missing or malformed key is a SceneError naming the file and the line.
@@ -119,6 +122,9 @@ struct Scene {
   std::vector<Muscle> muscles;                         // surfaces checked closed; fibres loaded
   std::vector<Bone> bones;  // one per link with collision meshes (all its meshes merged), placed at zero config
   std::map<std::string, Eigen::Isometry3d> rest_link_poses;  // link poses at zero configuration, scene frame
+  // One line per muscle surface repaired on loading (SceneDescription::repair_surfaces), naming muscle, file and
+  // changes; for the caller to show as warnings.
+  std::vector<std::string> repairs;
 };
 
 // Loads the selected muscles and every bone with collision meshes. `package_root` resolves relative scene paths;
