@@ -1,6 +1,6 @@
 // Broad phases for sphere-set collision: the seeds' AABB octree and a uniform spatial hash grid, plus the brute-force
 // reference both must agree with.
-#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/collision/collision_broad_phase.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -501,26 +501,6 @@ void BroadPhase::findPairsAmong(const std::vector<int>& ids, const std::vector<s
       const std::int32_t a = i_first ? ids[i] : ids[j], b = i_first ? ids[j] : ids[i];
       for (const SpherePair& p : scratch_pairs_) pairs.push_back({a, b, p.first, p.second});
     }
-}
-
-const char* toString(BroadPhaseKind kind) {
-  switch (kind) {
-    case BroadPhaseKind::octree:
-      return "octree";
-    case BroadPhaseKind::hash_grid:
-      return "hash_grid";
-  }
-  return "unknown";
-}
-
-std::string validate(const CollisionSettings& settings) {
-  if (settings.octree_max_depth < 0) return "octree_max_depth must be >= 0";
-  if (settings.octree_min_primitives < 1) return "octree_min_primitives must be >= 1";
-  if (!(settings.hash_cell_scale > 0.0) || !std::isfinite(settings.hash_cell_scale))
-    return "hash_cell_scale must be a positive number";
-  if (!(settings.bone_reach_margin_m >= 0.0) || !std::isfinite(settings.bone_reach_margin_m))
-    return "bone_reach_margin_m must be >= 0 (metres)";
-  return {};
 }
 
 std::unique_ptr<BroadPhase> makeBroadPhase(const CollisionSettings& settings) {

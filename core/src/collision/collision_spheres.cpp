@@ -1,5 +1,5 @@
 // Pre-processing for collision handling: sphere radii of muscle particles and sphere sets approximating bones.
-#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/collision/collision_spheres.hpp"
 #include "muscle_deformation/core/collision/point_index.hpp"
 
 #include <algorithm>

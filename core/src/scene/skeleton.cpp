@@ -1,5 +1,5 @@
 // The skeleton half of scene loading: URDF parsing (urdfdom) and forward kinematics.
-#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/scene/skeleton.hpp"
 
 #include <urdf_parser/urdf_parser.h>
 

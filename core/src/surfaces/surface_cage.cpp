@@ -1,5 +1,5 @@
 // The mean_value skinning's cage (a closed triangle mesh on the boundary particles) and mean value coordinates.
-#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/core/surfaces/surface_cage.hpp"
 
 extern "C" {
 #include <libqhull_r/qhull_ra.h>

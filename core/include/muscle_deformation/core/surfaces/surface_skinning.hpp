@@ -17,6 +17,7 @@
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 #include "muscle_deformation/core/model/model.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/surfaces/surface_cage.hpp"
 
 #include <Eigen/Sparse>
 
@@ -32,29 +33,12 @@ enum class SkinningMethod { nearest_average, mean_value, embedded };
 std::string toString(SkinningMethod method);
 SkinningMethod skinningMethodFromString(const std::string& name);  // throws std::invalid_argument
 
-// How the mean_value cage is triangulated from the boundary particles.
-enum class CageKind {
-  fibre_tube,   // the ring of outermost boundary fibres joined sample by sample, ends closed by fans: follows a muscle
-                // that is curved along its length (falls back to convex_hull when fibres differ in sample count)
-  convex_hull,  // convex hull of the boundary particles (qhull): always closed, but bridges concavities and drops
-                // particles that lie on flat parts of the hull
-};
-
-std::string toString(CageKind kind);
-CageKind cageKindFromString(const std::string& name);  // throws std::invalid_argument
-
 struct SkinningSettings {
   SkinningMethod method = SkinningMethod::nearest_average;  // chosen by measurement, see docs/surface_skinning.md
   int nearest_particles = 8;                           // nearest_average: N (thesis tried 3 and 8)
   CageKind cage = CageKind::convex_hull;               // mean_value; measured better than fibre_tube (docs)
   int embedded_candidate_particles = 8;                // embedded: tetrahedra around this many nearest particles
                                                        // are searched for the one containing the vertex
-};
-
-// Invalid input for skinning (open muscle surface, too few particles, degenerate cage); names the muscle.
-class SkinningError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
 };
 
 // What the precompute found; for judging how well-behaved the coordinates are.
@@ -70,21 +54,6 @@ struct SkinningDiagnostics {
   double max_rest_residual_m = 0; // max |vertex - sum w p_rest|: how exactly the coordinates reproduce the rest surface
   double precompute_ms = 0;
 };
-
-// A closed triangle cage whose corners are particles: mesh vertex k is particle `particle[k]` (muscle-local index).
-struct ParticleCage {
-  TriangleMesh mesh;
-  std::vector<std::int32_t> particle;
-  CageKind kind = CageKind::fibre_tube;
-};
-
-// Cage of muscle `muscle` of `system` at rest. Throws SkinningError when no closed cage can be built.
-ParticleCage buildParticleCage(const MassSpringSystem& system, int muscle, CageKind kind);
-
-// Mean value coordinates of `point` with respect to the closed, consistently wound triangle mesh `cage`: one weight
-// per cage vertex, summing to 1, with sum w_k v_k = point. Defined inside and outside the cage; on a cage triangle
-// they are that triangle's barycentric coordinates. `on_cage` (optional) reports that case.
-Eigen::VectorXd meanValueCoordinates(const TriangleMesh& cage, const Eigen::Vector3d& point, bool* on_cage = nullptr);
 
 // The skin of one muscle.
 class MuscleSkin {
