@@ -153,12 +153,23 @@ def take_screenshot(out, SetBool):
         print(f"demo: could not pause the bag ({error}); screenshot taken while playing")
     time.sleep(6)  # rviz (software rendering) shows the newest frame
     path = os.path.join(out, "rviz.png")
-    subprocess.run(["import", "-window", "root", path], check=False)
+    if os.path.exists(path):
+        os.remove(path)  # never report an earlier run's picture as this one's
+    # rviz under software GL can die at start-up; a screenshot of the empty display would look like success.
+    if rviz_window_shown():
+        subprocess.run(["import", "-window", "root", path], check=False)
+    else:
+        print("demo: no rviz window on the virtual display (rviz ended; see out/demo/roslaunch.log): no screenshot")
     try:
         pause(False)
     except rospy.ServiceException:
         pass
     return os.path.exists(path)
+
+
+def rviz_window_shown():
+    tree = subprocess.run(["xwininfo", "-root", "-tree"], capture_output=True, text=True, check=False).stdout
+    return "rviz" in tree.lower()
 
 
 def summarize(args, frames, stamps, bag_rate_hz, shot_taken):

@@ -148,6 +148,16 @@ TEST(DeformPoseService, RefusesANaNJointPositionNamingTheJoint) {
   expectRefusal(request, "non-finite");
 }
 
+TEST(DeformPoseService, AJointOutsideItsLimitsIsSolvedAndTheAnswerWarnsNamingIt) {
+  md::DeformPose::Request request = poseRequest(3.0, 1.0);  // hip flexion beyond the URDF's limit
+  request.max_iterations = 2;                              // the warning is the point, not the shape
+  const md::DeformPose::Response response = call(request);
+  ASSERT_TRUE(response.success) << response.message;
+  EXPECT_NE(response.message.find("warning: joint '" + expectations->hip_joint + "' = 3 is outside its limits"),
+            std::string::npos)
+      << response.message;
+}
+
 TEST(DeformPoseService, RefusesAnUnknownMuscleNamingIt) {
   md::DeformPose::Request request = poseRequest(0.5, 1.0);
   request.muscles = {"no_such_muscle"};
