@@ -10,7 +10,6 @@
 //                       streams that repeat poses: the gait as recorded, re-published at 2x and 4x its rate with
 //                       each pose held, and the gait followed by a held pose as long as the cycle.
 // Writes out/bench/economy.json: one object per economy and variant.
-#include "bench_scene.hpp"
 #include "bench_util.hpp"
 #include "node_defaults.hpp"
 #include "progress.hpp"
@@ -19,6 +18,7 @@
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
 #include <cstdio>
@@ -163,14 +163,14 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(options.out_dir);
   const bench::NodeDefaults defaults = bench::loadNodeDefaults();
 
-  const bench::BundledScene all = bench::loadBundledScene({});
-  const bench::BundledScene thigh13 = bench::loadBundledScene({"thigh13"});
-  const bench::BundledScene hip = bench::loadBundledScene({"hip"});
-  const bench::BundledScene one = bench::loadBundledScene({thigh13.scene.muscles.front().name});
+  const BundledScene all = loadBundledScene(MD_PACKAGE_DIR, {});
+  const BundledScene thigh13 = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  const BundledScene hip = loadBundledScene(MD_PACKAGE_DIR, {"hip"});
+  const BundledScene one = loadBundledScene(MD_PACKAGE_DIR, {thigh13.scene.muscles.front().name});
   // A quick run plays a stretch of the gait from its start; the full run plays the whole cycle.
   const std::size_t frame_count = options.quick ? std::min<std::size_t>(all.gait.frames.size(), 6) : all.gait.frames.size();
   std::vector<Pose> poses;
-  for (std::size_t f = 0; f < frame_count; ++f) poses.push_back(bench::gaitPose(all, f));
+  for (std::size_t f = 0; f < frame_count; ++f) poses.push_back(gaitPose(all, f));
   std::string bone_list;
   for (const Bone& bone : all.scene.bones) bone_list += " " + bone.name;
   std::printf("bones:%s; %zu gait frames per variant, %d iterations per frame, %d particles per fibre\n",
@@ -191,7 +191,7 @@ int main(int argc, char** argv) {
   // (a) A requested subset of muscles against all of them; the default thigh13 run also serves (b) and (c).
   struct Subset {
     std::string name;
-    const bench::BundledScene* bundled;
+    const BundledScene* bundled;
   };
   double all_26_frame_ms = 0, thigh13_frame_ms = 0;
   for (const Subset& subset : {Subset{"one_muscle_" + one.scene.muscles.front().name, &one},
@@ -302,7 +302,7 @@ int main(int argc, char** argv) {
     const std::vector<Eigen::Vector3d> centroids = boneRestCentroids(all.scene.bones);
     std::vector<BoneTransforms> recorded;
     for (std::size_t f = 0; f < all.gait.frames.size(); ++f)
-      recorded.push_back(boneTransformsOf(all.scene.bones, bench::gaitPose(all, f)));
+      recorded.push_back(boneTransformsOf(all.scene.bones, gaitPose(all, f)));
     // The check itself, timed over many calls (one is far below the clock's resolution).
     const int calls = options.quick ? 20000 : 200000;
     std::vector<double> per_call_ms;

@@ -7,7 +7,6 @@
 //   synthetic:       makeSyntheticThigh (13 spindles x 64 fibres), bones carrying the paper's sphere counts, the
 //                    gait's hip and knee flexion at the same five frames.
 // Writes out/bench/paper_table.json: one object per scene and resolution.
-#include "bench_scene.hpp"
 #include "bench_util.hpp"
 #include "iteration_split.hpp"
 #include "node_defaults.hpp"
@@ -20,6 +19,7 @@
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <cstdio>
 #include <filesystem>
@@ -86,11 +86,11 @@ int main(int argc, char** argv) {
   const bench::NodeDefaults defaults = bench::loadNodeDefaults();
   const Timing timing = options.quick ? Timing{3, 5, 10} : Timing{21, 20, 50};
 
-  const bench::BundledScene bundled = bench::loadBundledScene({"thigh13"});
-  const std::vector<std::size_t> frames = bench::fiveGaitFrames(bundled);
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  const std::vector<std::size_t> frames = fiveGaitFrames(bundled);
   std::vector<BoneTransforms> bundled_poses;
   for (const std::size_t frame : frames)
-    bundled_poses.push_back(boneTransformsOf(bundled.scene.bones, bench::gaitPose(bundled, frame)));
+    bundled_poses.push_back(boneTransformsOf(bundled.scene.bones, gaitPose(bundled, frame)));
 
   // The synthetic thigh bends at hip and knee only: the same frames' hip flexion and knee flexion (the bundled
   // skeleton's knee_angle_r is negative in flexion).

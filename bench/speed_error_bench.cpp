@@ -4,7 +4,6 @@
 // growing iteration counts and each snapshot is compared with the same model's converged shape for that pose.
 // Also: the converged surface at 20-80 particles per fibre against the converged 80-per-fibre surface.
 // Writes out/bench/speed_vs_error.json.
-#include "bench_scene.hpp"
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
 #include "progress.hpp"
@@ -18,6 +17,7 @@
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/core/model/spring_layout.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -161,7 +161,7 @@ struct ModelContext {
   }
 };
 
-std::unique_ptr<ModelContext> makeModel(const bench::BundledScene& bundled, const ModelChoice& choice,
+std::unique_ptr<ModelContext> makeModel(const BundledScene& bundled, const ModelChoice& choice,
                                         int particles_per_fibre, int reference_cap) {
   auto model = std::make_unique<ModelContext>();
   model->choice = choice;
@@ -267,8 +267,8 @@ struct ReferenceSolve {
   int drift_from_iteration = 0;
 };
 
-ReferenceSolve solveReference(ModelContext& model, const bench::BundledScene& bundled, std::size_t frame) {
-  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), bench::gaitPose(bundled, frame));
+ReferenceSolve solveReference(ModelContext& model, const BundledScene& bundled, std::size_t frame) {
+  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
   CollisionWorld& world = model.world(BroadPhaseKind::octree);
   world.setBoneTransforms(transforms);
   LocalGlobalSolver& solver = *model.reference_solver;
@@ -287,9 +287,9 @@ ReferenceSolve solveReference(ModelContext& model, const bench::BundledScene& bu
   return result;
 }
 
-void recordReference(bench::JsonRecords& records, ModelContext& model, const bench::BundledScene& bundled,
+void recordReference(bench::JsonRecords& records, ModelContext& model, const BundledScene& bundled,
                      std::size_t frame, const ReferenceSolve& reference) {
-  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), bench::gaitPose(bundled, frame));
+  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
   CollisionWorld& world = model.world(BroadPhaseKind::octree);
   world.setBoneTransforms(transforms);
   // Measured against itself through the same path as every curve point: its rms_mm must come out 0.
@@ -341,7 +341,7 @@ void accumulate(CurveSummary& summary, const std::vector<int>& iterations, const
 }
 
 // `summary` gathers every pose; `check_summary` only `check_frame`.
-void runConfig(const Config& config, ModelContext& model, const bench::BundledScene& bundled,
+void runConfig(const Config& config, ModelContext& model, const BundledScene& bundled,
                const std::vector<std::size_t>& frames, std::size_t check_frame, bench::JsonRecords& records,
                CurveSummary& summary, CurveSummary& check_summary) {
   const MassSpringSystem& system = model.system();
@@ -377,7 +377,7 @@ void runConfig(const Config& config, ModelContext& model, const bench::BundledSc
   CollisionWorld& world = model.world(config.broad_phase);
 
   for (const std::size_t frame : frames) {
-    const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), bench::gaitPose(bundled, frame));
+    const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
     world.setBoneTransforms(transforms);
     ParticleState start;
     if (config.warm) {
@@ -385,7 +385,7 @@ void runConfig(const Config& config, ModelContext& model, const bench::BundledSc
       const std::size_t before = neighbourFrame(frame);
       start.position = model.previous_converged.at(frame);
       start.previous_position = start.position;
-      warmStart(system, boneTransformsOf(model.simulation->bones(), bench::gaitPose(bundled, before)), transforms, start);
+      warmStart(system, boneTransformsOf(model.simulation->bones(), gaitPose(bundled, before)), transforms, start);
     } else {
       rigidPretransform(system, transforms, start);
     }
@@ -462,7 +462,7 @@ void printSummary(const std::string& title, const std::vector<Config>& configs,
 // measured on the second pass, so each starts warm from a stream that has run for a cycle. One curve point per
 // reference frame: iterations = iterations per frame, wall_ms = that frame's solve time.
 void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history, int iterations_per_frame,
-                  ModelContext& model, const bench::BundledScene& bundled, const std::vector<std::size_t>& frames,
+                  ModelContext& model, const BundledScene& bundled, const std::vector<std::size_t>& frames,
                   bench::JsonRecords& records) {
   SimulationSettings settings = model.simulation->settings();
   settings.solver_kind = solver;
@@ -476,7 +476,7 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
   double solve_ms_sum = 0;
   for (int pass = 0; pass < 2; ++pass)
     for (std::size_t frame = 0; frame < frame_count; ++frame) {
-      const Pose pose = bench::gaitPose(bundled, frame);
+      const Pose pose = gaitPose(bundled, frame);
       const FrameStats stats = stream.solve(pose, StartMode::warm);
       if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
       solve_ms_sum += stats.solve.total_ms;
@@ -532,8 +532,8 @@ int main(int argc, char** argv) {
     budget.resolutions = {20, 40, 60, 80};
   }
 
-  const bench::BundledScene bundled = bench::loadBundledScene();
-  const std::vector<std::size_t> five = bench::fiveGaitFrames(bundled);
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR);
+  const std::vector<std::size_t> five = fiveGaitFrames(bundled);
   // Quick runs use the middle frame only (mid-cycle, where the default run checks the two solvers against each other).
   const std::size_t check_frame = five[five.size() / 2];
   const std::vector<std::size_t> frames = options.quick ? std::vector<std::size_t>{check_frame} : five;
@@ -666,14 +666,14 @@ int main(int argc, char** argv) {
     if (is_default) {
       // The checkpointed solves must be the solves MuscleSimulation runs: its own solve, stopped at a checkpoint's
       // iteration count, has to land on that checkpoint.
-      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), bench::gaitPose(bundled, check_frame));
+      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), gaitPose(bundled, check_frame));
       CollisionWorld& world = model->world(BroadPhaseKind::octree);
       const int same_cap = budget.local_global_cap;
       SimulationSettings short_settings = model->simulation->settings();
       short_settings.local_global.stopping_rule = StoppingRule::iterations;
       short_settings.local_global.max_iterations = same_cap;
       MuscleSimulation short_simulation(bundled.scene.muscles, bundled.scene.bones, short_settings);
-      short_simulation.solve(bench::gaitPose(bundled, check_frame), StartMode::cold);
+      short_simulation.solve(gaitPose(bundled, check_frame), StartMode::cold);
       world.setBoneTransforms(transforms);
       LocalGlobalSolver short_solver(model->system(), short_settings.local_global);
       const bench::ConvergenceRun short_run =
@@ -778,7 +778,7 @@ int main(int argc, char** argv) {
         solve = solveReference(*model, bundled, frame);
         recordReference(records, *model, bundled, frame, solve);
       }
-      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), bench::gaitPose(bundled, frame));
+      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), gaitPose(bundled, frame));
       CollisionWorld& world = model->world(BroadPhaseKind::octree);
       world.setBoneTransforms(transforms);
       metrics_by_resolution[r].push_back(measurePoint(*model, world, transforms, solve.position, solve.position, true));

@@ -2,7 +2,6 @@
 // the 2019 PBD thesis' femur flexion scenario on our data. Writes out/bench/stability.json: one object per case.
 //
 //   stability_bench [--out DIR] [--quick]
-#include "bench_scene.hpp"
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
 #include "node_defaults.hpp"
@@ -10,6 +9,7 @@
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -24,8 +24,8 @@ using namespace muscle_deformation;
 namespace {
 
 // gait2392: hip_flexion_r positive is flexion, knee_angle_r negative is flexion.
-Pose jointPose(const bench::BundledScene& bundled, double hip_flexion_rad, double knee_flexion_rad) {
-  return bench::poseFor(bundled, {{"hip_flexion_r", hip_flexion_rad}, {"knee_angle_r", -knee_flexion_rad}});
+Pose jointPose(const BundledScene& bundled, double hip_flexion_rad, double knee_flexion_rad) {
+  return poseFor(bundled, {{"hip_flexion_r", hip_flexion_rad}, {"knee_angle_r", -knee_flexion_rad}});
 }
 
 Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& pose) {
@@ -122,7 +122,7 @@ class Report {
 };
 
 // One pose solved on a fresh thigh13 simulation, starting as `start` after an optional rest frame.
-void poseCase(Report& report, const bench::BundledScene& bundled, const std::string& name, const std::string& description,
+void poseCase(Report& report, const BundledScene& bundled, const std::string& name, const std::string& description,
               const SimulationSettings& settings, const Pose& pose, bool warm_from_rest) {
   MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
   const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
@@ -142,7 +142,7 @@ int main(int argc, char** argv) {
   constexpr double kDegree = 3.14159265358979323846 / 180.0;
 
   const SimulationSettings settings = bench::loadNodeDefaults().simulation;  // config/muscle_deformation.yaml
-  const bench::BundledScene thigh = bench::loadBundledScene({"thigh13"});
+  const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
   std::printf("[%6.1f s] loaded thigh13\n", report.elapsedSeconds());
   const Pose walking = jointPose(thigh, 0.5, 1.0);
 
@@ -200,7 +200,7 @@ int main(int argc, char** argv) {
   // The 2019 PBD thesis' scenario: the femur flexes 1 rad forward and back over 200 frames, warm every frame; how far
   // does the gluteus maximus end from its starting shape, and how deep do particles sink into bone on the way.
   {
-    const bench::BundledScene with_gluteus = bench::loadBundledScene({"thigh13", "gluteus_maximus"});
+    const BundledScene with_gluteus = loadBundledScene(MD_PACKAGE_DIR, {"thigh13", "gluteus_maximus"});
     MuscleSimulation simulation(with_gluteus.scene.muscles, with_gluteus.scene.bones, settings);
     const MassSpringSystem& system = simulation.system();
     int gluteus = -1;

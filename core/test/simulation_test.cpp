@@ -40,6 +40,23 @@ TEST(RestOverlaps, TouchingMusclesAndBonesDoNotDeformAtRest) {
   EXPECT_EQ(stats.collision.max_penetration_muscle_bone_m, 0.0);
 }
 
+TEST(RestOverlaps, TheCollisionReadyModelIsFinalAndIsTheOneTheSimulationRuns) {
+  const SimulationSettings settings = smallSettings();
+  const CollisionReadyModel model =
+      buildCollisionReadyModel(packedMuscles(), grazingBones(), settings.model, settings.collision.bone_sphere_rule);
+  const MuscleSimulation simulation(packedMuscles(), grazingBones(), settings);
+  EXPECT_EQ(model.system.radius, simulation.system().radius);
+  ASSERT_EQ(model.bone_spheres.size(), 2u);
+  EXPECT_EQ(model.bone_spheres[0].centre, simulation.collisionWorld()->boneSpheresRest(0).centre);
+  EXPECT_EQ(model.rest_overlaps.muscle_muscle_pairs, simulation.restOverlaps().muscle_muscle_pairs);
+  EXPECT_EQ(model.rest_overlaps.muscle_bone_pairs, simulation.restOverlaps().muscle_bone_pairs);
+  // Final: the shrink found something to do, and doing it again finds nothing.
+  EXPECT_GT(model.rest_overlaps.muscle_muscle_pairs + model.rest_overlaps.muscle_bone_pairs, 0);
+  MassSpringSystem again = model.system;
+  const RestOverlapSummary second = clearRestOverlaps(again, model.bone_spheres);
+  EXPECT_EQ(second.muscle_muscle_pairs + second.muscle_bone_pairs, 0);
+}
+
 TEST(RestOverlaps, ShrunkSpheresJustTouchAndCentresInsideABoneSphereLoseTheirSphere) {
   Eigen::Matrix3Xd positions(3, 3);
   positions << 0, 0.015, 0.5,  //

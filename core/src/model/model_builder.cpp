@@ -303,4 +303,14 @@ MassSpringSystem systemFromParticles(const Eigen::Matrix3Xd& positions, const Pa
   return system;
 }
 
+CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
+                                             const ModelSettings& settings, OneRingRule bone_sphere_rule,
+                                             ModelBuildReport* report) {
+  CollisionReadyModel model;
+  model.system = buildMassSpringSystem(muscles, bones, settings, report);
+  for (const Bone& bone : bones) model.bone_spheres.push_back(boneSpheresOneRing(bone.surface, bone_sphere_rule));
+  model.rest_overlaps = clearRestOverlaps(model.system, model.bone_spheres);
+  return model;
+}
+
 }  // namespace muscle_deformation

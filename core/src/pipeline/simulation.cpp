@@ -9,18 +9,20 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
-  system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
   if (settings_.collisions) {
-    std::vector<SphereSet> bone_spheres;
-    for (const Bone& bone : bones_) bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings_.collision.bone_sphere_rule));
-    rest_overlaps_ = clearRestOverlaps(system_, bone_spheres);
+    CollisionReadyModel model =
+        buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision.bone_sphere_rule, &build_report_);
+    system_ = std::move(model.system);
+    rest_overlaps_ = model.rest_overlaps;
     std::vector<std::string> bone_names;
     for (const Bone& bone : bones_) bone_names.push_back(bone.name);
-    collision_ = std::make_unique<CollisionWorld>(system_, std::move(bone_spheres), settings_.collision, bone_names);
+    collision_ = std::make_unique<CollisionWorld>(system_, std::move(model.bone_spheres), settings_.collision, bone_names);
+  } else {
+    system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
   }
-  // After the collision set-up: both solvers read the sphere radii it may shrink (the local/global contact weights,
-  // the adaptive step's boundary particles). The local/global solver factorises its matrix here, once: it depends on
-  // the model and settings, not the pose.
+  // The model is final here (radii shrunk for the rest pose), as the solvers need: they read the sphere radii (the
+  // local/global contact weights, the adaptive step's boundary particles). The local/global solver factorises its
+  // matrix here, once: it depends on the model and settings, not the pose.
   solver_ = makeSolver(SolverChoice{settings_.solver_kind, settings_.solver, settings_.local_global}, system_);
   state_ = restState(system_);
 }

@@ -1,6 +1,7 @@
 // Building the mass-spring system of a set of muscles around a set of bones (pre-processing of thesis 4.4.2).
 #pragma once
 
+#include "muscle_deformation/core/collision/collision_spheres.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 #include "muscle_deformation/core/model/model.hpp"
 #include "muscle_deformation/core/model/spring_layout.hpp"
@@ -56,6 +57,18 @@ struct ModelBuildReport {
 // Boundary particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report = nullptr);
+
+// The model a collision-aware solve runs on, final when returned: the system with its collision radii shrunk so that
+// the rest pose is free of contacts (clearRestOverlaps), and each bone's sphere set (rest frame, boneSpheresOneRing).
+// Build solvers after it, never before: they precompute from the radii.
+struct CollisionReadyModel {
+  MassSpringSystem system;
+  std::vector<SphereSet> bone_spheres;  // per bone, in the order of `bones`
+  RestOverlapSummary rest_overlaps;
+};
+CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
+                                             const ModelSettings& settings, OneRingRule bone_sphere_rule,
+                                             ModelBuildReport* report = nullptr);
 
 // A bare system from given particles and springs (no fibres, no bones), for tests and small analytic set-ups:
 // uniform mass, stiffness = material / rest length, no particle fixed or boundary, zero radius.
