@@ -321,7 +321,7 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: the solve at " << link_poses.stamp << " reached max_solve_time_s = "
                                                                       << settings_.max_solve_time_s << " s");
 
-  muscle_deformation::DeformationStats stats;
+  Counters counters;  // as of this frame, for ~stats
   {
     std::lock_guard<std::mutex> lock(counters_mutex_);
     ++counters_.solved;
@@ -331,14 +331,7 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     counters_.divergence_recoveries += static_cast<std::uint32_t>(frame.solve.solve.divergence_recoveries);
     if (frame.solve.solve.diverged) ++counters_.diverged;
     window_solve_ms_.push_back(frame.solve.solve.total_ms);
-    stats.poses_received = counters_.received;
-    stats.poses_solved = counters_.solved;
-    stats.poses_dropped = counters_.dropped;
-    stats.poses_unchanged = counters_.unchanged;
-    stats.tf_failures = counters_.tf_failures;
-    stats.poses_non_finite = counters_.non_finite_joint_states;
-    stats.poses_future_stamp = counters_.future_stamps;
-    stats.resets = counters_.resets;
+    counters = counters_;
   }
   if (frame.solve.solve.diverged)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged at every time step down to "
@@ -369,16 +362,16 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
         surfacesToMarkers(*stream_->skinning(), frame.surfaces, muscles, header, settings_.stream.surface_alpha));
   }
   if (want_stats) {
-    muscle_deformation::DeformationStats full = statsToMessage(frame, header);
-    full.poses_received = stats.poses_received;
-    full.poses_solved = stats.poses_solved;
-    full.poses_dropped = stats.poses_dropped;
-    full.poses_unchanged = stats.poses_unchanged;
-    full.tf_failures = stats.tf_failures;
-    full.poses_non_finite = stats.poses_non_finite;
-    full.poses_future_stamp = stats.poses_future_stamp;
-    full.resets = stats.resets;
-    stats_pub_.publish(full);
+    muscle_deformation::DeformationStats stats = statsToMessage(frame, header);
+    stats.poses_received = counters.received;
+    stats.poses_solved = counters.solved;
+    stats.poses_dropped = counters.dropped;
+    stats.poses_unchanged = counters.unchanged;
+    stats.tf_failures = counters.tf_failures;
+    stats.poses_non_finite = counters.non_finite_joint_states;
+    stats.poses_future_stamp = counters.future_stamps;
+    stats.resets = counters.resets;
+    stats_pub_.publish(stats);
   }
 }
 
