@@ -1,5 +1,7 @@
 #include "muscle_deformation/node/parameters.hpp"
 
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
+
 #include <cmath>
 #include <filesystem>
 #include <stdexcept>
@@ -100,32 +102,7 @@ class ParameterReader {
   const ParameterSource& source_;
 };
 
-template <typename Enum>
-Enum parseNamed(const std::string& name, std::initializer_list<std::pair<const char*, Enum>> options) {
-  std::string accepted;
-  for (const auto& [text, value] : options) {
-    if (name == text) return value;
-    accepted += (accepted.empty() ? "" : ", ") + std::string(text);
-  }
-  throw std::invalid_argument("'" + name + "' is not one of: " + accepted);
-}
-
 }  // namespace
-
-TimeStepRule timeStepRuleFromString(const std::string& name) {
-  return parseNamed<TimeStepRule>(name, {{"fixed", TimeStepRule::fixed}, {"adaptive", TimeStepRule::adaptive}});
-}
-StoppingRule stoppingRuleFromString(const std::string& name) {
-  return parseNamed<StoppingRule>(name, {{"iterations", StoppingRule::iterations},
-                                         {"displacement", StoppingRule::displacement},
-                                         {"time_budget", StoppingRule::time_budget}});
-}
-MassRule massRuleFromString(const std::string& name) {
-  return parseNamed<MassRule>(name, {{"uniform", MassRule::uniform}, {"stiffness_scaled", MassRule::stiffness_scaled}});
-}
-BroadPhaseKind broadPhaseFromString(const std::string& name) {
-  return parseNamed<BroadPhaseKind>(name, {{"octree", BroadPhaseKind::octree}, {"hash_grid", BroadPhaseKind::hash_grid}});
-}
 
 void shareStoppingRule(SimulationSettings& simulation) {
   simulation.local_global.stopping_rule = simulation.solver.stopping_rule;
@@ -152,11 +129,9 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
 
 NodeSettings readNodeSettings(const ParameterSource& parameters, const std::string& package_root) {
   NodeSettings settings;
-  // Where the node's defaults differ from the core's (which keep the seeds' values for the benchmarks): the streamed
-  // frame's cost, chosen by measurement (docs/BENCHMARKS.md). config/muscle_deformation.yaml documents the same values
-  // (a test checks), so a node started without it behaves as one started by the launch file.
-  settings.pipeline.simulation.solver.max_iterations = 30;
-  settings.pipeline.simulation.solver.time_budget_ms = 12.0;
+  // The core's settings (model, solver, collision, surfaces, stream policy) from their one table, starting from the
+  // node's defaults, which config/muscle_deformation.yaml documents (a test checks).
+  CoreSettings core = nodeDefaultSettings();
   settings.package_root = package_root;
   settings.scene_path = (std::filesystem::path(package_root) / "config/scenes/right_hip_thigh.yaml").string();
   const ParameterReader p(parameters);
@@ -166,31 +141,23 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   p.readString("fixed_frame", settings.fixed_frame);
   if (settings.fixed_frame.empty()) p.fail("fixed_frame", "must not be empty");
 
-  ModelSettings& model = settings.pipeline.simulation.model;
-  p.readInt("particles_per_fibre", model.particles_per_fibre, 2, 10000);
-  p.readEnum("spring_layout", model.spring_layout, springLayoutFromString);
-  p.readInt("nearest_neighbours", model.nearest_neighbours, 1, 1000);
-  p.readDouble("attachment_distance_m", model.attachment_distance_m, 0.0, 1.0);
-  p.readBool("fix_fibre_ends", model.fix_fibre_ends);
-  p.readDouble("spring_material_n", model.spring_material_n, 1e-9, 1e9);
-  p.readDouble("density_kg_per_m3", model.density_kg_per_m3, 1e-6, 1e6);
-
-  SolverSettings& solver = settings.pipeline.simulation.solver;
-  p.readEnum("mass_rule", solver.mass_rule, massRuleFromString);
-  p.readEnum("dt_rule", solver.dt_rule, timeStepRuleFromString);
-  p.readDouble("dt_s", solver.dt_s, 0.0, 10.0);
-  p.readDouble("dt_min_s", solver.dt_min_s, 0.0, 10.0);
-  p.readDouble("damping_scale", solver.damping_scale, 0.0, 1e6);
-  p.readEnum("stopping_rule", solver.stopping_rule, stoppingRuleFromString);
-  p.readInt("max_iterations", solver.max_iterations, 1, 1000000);
-  p.readDouble("displacement_tolerance_m", solver.displacement_tolerance_m, 0.0, 1.0);
-  p.readDouble("time_budget_ms", solver.time_budget_ms, 0.0, 1e6);
-
+  for (const SettingSpec& spec : coreSettingSpecs()) {
+    XmlRpc::XmlRpcValue raw;
+    if (!parameters.get(spec.name, raw)) continue;  // keep the default
+    SettingValue value;
+    switch (raw.getType()) {
+      case XmlRpc::XmlRpcValue::TypeBoolean: value = static_cast<bool>(raw); break;
+      case XmlRpc::XmlRpcValue::TypeInt: value = static_cast<int>(raw); break;
+      case XmlRpc::XmlRpcValue::TypeDouble: value = static_cast<double>(raw); break;
+      case XmlRpc::XmlRpcValue::TypeString: value = static_cast<std::string>(raw); break;
+      default: p.fail(spec.name, "must be a single value");
+    }
+    if (const std::string problem = checkSetting(spec, value); !problem.empty()) p.fail(spec.name, problem);
+    spec.set(core, value);
+  }
+  settings.pipeline = core.pipeline;
+  settings.stream.policy = core.stream;
   SimulationSettings& simulation = settings.pipeline.simulation;
-  p.readEnum("solver", simulation.solver_kind, solverKindFromString);
-  p.readDouble("volume_weight", simulation.local_global.volume_weight, 0.0, 1e6);
-  p.readDouble("chebyshev_rho", simulation.local_global.chebyshev_rho, 0.0, 0.999);
-  p.readInt("lbfgs_history", simulation.local_global.lbfgs_history, 0, 1000);
   ServiceSettings& service = settings.service;
   p.readEnum("service_solver", service.solver_kind, solverKindFromString);
   p.readInt("service_lbfgs_history", service.lbfgs_history, 0, 1000);
@@ -210,16 +177,6 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
     if (const std::string problem = validate(service_local_global); !problem.empty())
       p.fail("service_lbfgs_history", problem + " (chebyshev_rho and volume_weight apply to the service too)");
 
-  p.readBool("collisions", simulation.collisions);
-  p.readEnum("broad_phase", simulation.collision.broad_phase, broadPhaseFromString);
-  p.readDouble("bone_reach_margin_m", simulation.collision.bone_reach_margin_m, 0.0, 10.0);
-
-  p.readBool("surfaces", settings.pipeline.skin_surfaces);
-  p.readBool("surface_metrics", settings.pipeline.measure_fidelity);
-  p.readEnum("skinning_method", settings.pipeline.skinning.method, skinningMethodFromString);
-  p.readInt("skinning_nearest_particles", settings.pipeline.skinning.nearest_particles, 1, 1000);
-  p.readEnum("skinning_cage", settings.pipeline.skinning.cage, cageKindFromString);
-
   StreamSettings& stream = settings.stream;
   for (const char* replaced : {"reset_translation_m", "reset_rotation_rad"}) {
     if (p.has(replaced)) {
@@ -228,12 +185,7 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
                        "starts have service_warm_max_translation_m / service_warm_max_rotation_rad");
     }
   }
-  p.readBool("warm_start", stream.policy.warm_start);
   p.readDouble("tf_wait_s", stream.tf_wait_s, 0.0, 60.0);
-  p.readDouble("max_bone_speed_m_per_s", stream.policy.max_bone_speed_m_per_s, 1e-6, 1e6);
-  p.readDouble("max_bone_angular_speed_rad_per_s", stream.policy.max_bone_angular_speed_rad_per_s, 1e-6, 1e6);
-  p.readDouble("unchanged_translation_m", stream.policy.unchanged_translation_m, 0.0, 1.0);
-  p.readDouble("unchanged_rotation_rad", stream.policy.unchanged_rotation_rad, 0.0, 1.0);
   p.readBool("colour_fibres_by_strain", stream.colour_fibres_by_strain);
   double alpha = stream.surface_alpha;
   p.readDouble("surface_alpha", alpha, 0.0, 1.0);

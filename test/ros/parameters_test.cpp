@@ -2,6 +2,8 @@
 // config/muscle_deformation.yaml agreeing with the defaults the code holds.
 #include "muscle_deformation/node/parameters.hpp"
 
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
+
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
@@ -70,57 +72,45 @@ TEST(Parameters, TheDocumentedFileHoldsTheDefaultsAndNamesEveryParameterTheNodeR
     if (!explained_elsewhere) EXPECT_TRUE(documented.count(name)) << name << " is read but not documented";
   }
 
-  // "Every value below is the node's default": the file changes nothing.
+  // "Every value below is the node's default": the file changes nothing. The core's settings through their table
+  // (pipeline, solvers, collision, surfaces, stream policy), the node's own ones by name.
+  md::CoreSettings core_from_file{from_file.pipeline, from_file.stream.policy};
+  md::CoreSettings core_defaults{defaults.pipeline, defaults.stream.policy};
+  for (const md::SettingSpec& spec : md::coreSettingSpecs()) {
+    EXPECT_TRUE(spec.get(core_from_file) == spec.get(core_defaults)) << spec.name;
+    EXPECT_TRUE(documented.count(spec.name)) << spec.name << " is in the settings table but not documented";
+    EXPECT_FALSE(spec.meaning.empty()) << spec.name;
+  }
+  EXPECT_TRUE(md::coreSettingSpecs().size() >= 30u);
 #define EXPECT_SAME(field) EXPECT_EQ(from_file.field, defaults.field) << #field
   EXPECT_SAME(scene_path);
   EXPECT_SAME(muscles);
   EXPECT_SAME(fixed_frame);
   EXPECT_SAME(max_solve_time_s);
-  EXPECT_SAME(pipeline.simulation.model.particles_per_fibre);
-  EXPECT_SAME(pipeline.simulation.model.spring_layout);
-  EXPECT_SAME(pipeline.simulation.model.nearest_neighbours);
-  EXPECT_SAME(pipeline.simulation.model.attachment_distance_m);
-  EXPECT_SAME(pipeline.simulation.model.fix_fibre_ends);
-  EXPECT_SAME(pipeline.simulation.model.spring_material_n);
-  EXPECT_SAME(pipeline.simulation.model.density_kg_per_m3);
-  EXPECT_SAME(pipeline.simulation.solver.mass_rule);
-  EXPECT_SAME(pipeline.simulation.solver.dt_rule);
-  EXPECT_SAME(pipeline.simulation.solver.dt_s);
-  EXPECT_SAME(pipeline.simulation.solver.dt_min_s);
-  EXPECT_SAME(pipeline.simulation.solver.damping_scale);
-  EXPECT_SAME(pipeline.simulation.solver.stopping_rule);
-  EXPECT_SAME(pipeline.simulation.solver.max_iterations);
-  EXPECT_SAME(pipeline.simulation.solver.displacement_tolerance_m);
-  EXPECT_SAME(pipeline.simulation.solver.time_budget_ms);
-  EXPECT_SAME(pipeline.simulation.solver_kind);
-  EXPECT_SAME(pipeline.simulation.local_global.volume_weight);
-  EXPECT_SAME(pipeline.simulation.local_global.chebyshev_rho);
-  EXPECT_SAME(pipeline.simulation.local_global.lbfgs_history);
-  EXPECT_SAME(pipeline.simulation.collisions);
-  EXPECT_SAME(pipeline.simulation.collision.broad_phase);
-  EXPECT_SAME(pipeline.simulation.collision.bone_reach_margin_m);
-  EXPECT_SAME(pipeline.skin_surfaces);
-  EXPECT_SAME(pipeline.measure_fidelity);
-  EXPECT_SAME(pipeline.skinning.method);
-  EXPECT_SAME(pipeline.skinning.nearest_particles);
-  EXPECT_SAME(pipeline.skinning.cage);
+  EXPECT_SAME(pipeline.simulation.local_global.stopping_rule);   // shared from the stream's stopping parameters
+  EXPECT_SAME(pipeline.simulation.local_global.max_iterations);
   EXPECT_SAME(service.solver_kind);
   EXPECT_SAME(service.lbfgs_history);
   EXPECT_SAME(service.max_iterations);
   EXPECT_SAME(service.max_queued);
   EXPECT_SAME(service.warm_max_translation_m);
   EXPECT_SAME(service.warm_max_rotation_rad);
-  EXPECT_SAME(stream.policy.warm_start);
-  EXPECT_SAME(stream.policy.max_bone_speed_m_per_s);
-  EXPECT_SAME(stream.policy.max_bone_angular_speed_rad_per_s);
-  EXPECT_SAME(stream.policy.unchanged_translation_m);
-  EXPECT_SAME(stream.policy.unchanged_rotation_rad);
   EXPECT_SAME(stream.tf_wait_s);
   EXPECT_SAME(stream.colour_fibres_by_strain);
   EXPECT_SAME(stream.surface_alpha);
   EXPECT_SAME(stream.stats_metrics);
   EXPECT_SAME(stream.expected_rate_hz);
 #undef EXPECT_SAME
+}
+
+TEST(Parameters, TheBenchmarksReadTheDocumentedFileAsTheNodeDoes) {
+  md::CoreSettings from_yaml = md::nodeDefaultSettings();
+  md::readSettingsYaml(kPackageRoot + "/config/muscle_deformation.yaml", from_yaml);
+  const node::NodeSettings node_settings =
+      node::readNodeSettings(node::MapParameters(documentedParameters()), kPackageRoot);
+  const md::CoreSettings from_node{node_settings.pipeline, node_settings.stream.policy};
+  for (const md::SettingSpec& spec : md::coreSettingSpecs())
+    EXPECT_TRUE(spec.get(from_yaml) == spec.get(from_node)) << spec.name;
 }
 
 TEST(Parameters, ValuesOfEveryKindAreReadIntoTheSettings) {

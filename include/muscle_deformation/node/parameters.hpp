@@ -88,10 +88,5 @@ NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::st
 // copies them from the Verlet settings into the local/global ones.
 void shareStoppingRule(SimulationSettings& simulation);
 
-// Parses the names used in the YAML; throw std::invalid_argument listing the accepted names.
-TimeStepRule timeStepRuleFromString(const std::string& name);
-StoppingRule stoppingRuleFromString(const std::string& name);
-MassRule massRuleFromString(const std::string& name);
-BroadPhaseKind broadPhaseFromString(const std::string& name);
 
 }  // namespace muscle_deformation::node

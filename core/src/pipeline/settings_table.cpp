@@ -1,0 +1,251 @@
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <regex>
+#include <stdexcept>
+#include <utility>
+
+namespace muscle_deformation {
+namespace {
+
+using Kind = SettingSpec::Kind;
+
+double asNumber(const SettingValue& value) {
+  if (const int* i = std::get_if<int>(&value)) return *i;
+  return std::get<double>(value);
+}
+
+template <typename Access>
+SettingSpec boolean(std::string name, std::string meaning, Access access) {
+  SettingSpec spec{std::move(name), Kind::boolean, "", 0, 0, {}, std::move(meaning), {}, {}};
+  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
+  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = std::get<bool>(v); };
+  return spec;
+}
+
+template <typename Access>
+SettingSpec integer(std::string name, std::string unit, int min, int max, std::string meaning, Access access) {
+  SettingSpec spec{std::move(name), Kind::integer, std::move(unit), double(min), double(max), {}, std::move(meaning),
+                   {}, {}};
+  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
+  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = static_cast<int>(asNumber(v)); };
+  return spec;
+}
+
+template <typename Access>
+SettingSpec number(std::string name, std::string unit, double min, double max, std::string meaning, Access access) {
+  SettingSpec spec{std::move(name), Kind::number, std::move(unit), min, max, {}, std::move(meaning), {}, {}};
+  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
+  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = asNumber(v); };
+  return spec;
+}
+
+// `names[i]` is the name of `values[i]`.
+template <typename Enum, typename Access>
+SettingSpec choice(std::string name, std::vector<std::string> names, std::vector<Enum> values, std::string meaning,
+                   Access access) {
+  SettingSpec spec{std::move(name), Kind::choice, "", 0, 0, names, std::move(meaning), {}, {}};
+  spec.get = [access, names, values](const CoreSettings& s) {
+    const Enum current = access(const_cast<CoreSettings&>(s));
+    for (std::size_t i = 0; i < values.size(); ++i)
+      if (values[i] == current) return SettingValue(names[i]);
+    return SettingValue(std::string("?"));
+  };
+  spec.set = [access, names, values](CoreSettings& s, const SettingValue& v) {
+    const std::string& text = std::get<std::string>(v);
+    for (std::size_t i = 0; i < names.size(); ++i)
+      if (names[i] == text) access(s) = values[i];
+  };
+  return spec;
+}
+
+std::vector<SettingSpec> buildTable() {
+  const auto model = [](CoreSettings& s) -> ModelSettings& { return s.pipeline.simulation.model; };
+  const auto verlet = [](CoreSettings& s) -> SolverSettings& { return s.pipeline.simulation.solver; };
+  const auto local_global = [](CoreSettings& s) -> LocalGlobalSettings& { return s.pipeline.simulation.local_global; };
+  return {
+      // Mass-spring model
+      integer("particles_per_fibre", "count", 2, 10000, "particles sampled along each fibre",
+              [model](CoreSettings& s) -> int& { return model(s).particles_per_fibre; }),
+      choice<SpringLayout>("spring_layout", {"nearest_neighbours", "cubic6", "cubic26", "delaunay"},
+                           {SpringLayout::nearest_neighbours, SpringLayout::cubic6, SpringLayout::cubic26,
+                            SpringLayout::delaunay},
+                           "which particles are joined by springs",
+                           [model](CoreSettings& s) -> SpringLayout& { return model(s).spring_layout; }),
+      integer("nearest_neighbours", "count", 1, 1000, "springs per particle for the nearest_neighbours layout",
+              [model](CoreSettings& s) -> int& { return model(s).nearest_neighbours; }),
+      number("attachment_distance_m", "m", 0.0, 1.0, "particles closer than this to a bone surface are fixed to it",
+             [model](CoreSettings& s) -> double& { return model(s).attachment_distance_m; }),
+      boolean("fix_fibre_ends", "the first and last particle of every fibre are fixed to the nearest bone",
+              [model](CoreSettings& s) -> bool& { return model(s).fix_fibre_ends; }),
+      number("spring_material_n", "N", 1e-9, 1e9, "spring stiffness is this divided by the rest length",
+             [model](CoreSettings& s) -> double& { return model(s).spring_material_n; }),
+      number("density_kg_per_m3", "kg/m^3", 1e-6, 1e6, "muscle density, for the particle masses",
+             [model](CoreSettings& s) -> double& { return model(s).density_kg_per_m3; }),
+      // Solver
+      choice<SolverKind>("solver", {"verlet", "local_global"}, {SolverKind::verlet, SolverKind::local_global},
+                         "the solver of the mass-spring system",
+                         [](CoreSettings& s) -> SolverKind& { return s.pipeline.simulation.solver_kind; }),
+      number("volume_weight", "", 0.0, 1e6, "local_global: weight of the per-tetrahedron volume term (0 = off)",
+             [local_global](CoreSettings& s) -> double& { return local_global(s).volume_weight; }),
+      number("chebyshev_rho", "", 0.0, 0.999, "local_global: Chebyshev acceleration's spectral radius (0 = off)",
+             [local_global](CoreSettings& s) -> double& { return local_global(s).chebyshev_rho; }),
+      integer("lbfgs_history", "count", 0, 1000, "local_global: L-BFGS curvature pairs kept (0 = plain iterations)",
+              [local_global](CoreSettings& s) -> int& { return local_global(s).lbfgs_history; }),
+      choice<MassRule>("mass_rule", {"uniform", "stiffness_scaled"}, {MassRule::uniform, MassRule::stiffness_scaled},
+                       "how particle masses are set (stiffness_scaled: particles on stiff springs made heavier)",
+                       [verlet](CoreSettings& s) -> MassRule& { return verlet(s).mass_rule; }),
+      choice<TimeStepRule>("dt_rule", {"fixed", "adaptive"}, {TimeStepRule::fixed, TimeStepRule::adaptive},
+                           "Verlet's time step: fixed, or the largest keeping boundary particles within their radius",
+                           [verlet](CoreSettings& s) -> TimeStepRule& { return verlet(s).dt_rule; }),
+      number("dt_s", "s", 0.0, 10.0, "Verlet's time step (0 = 0.9 x the explicit stability bound)",
+             [verlet](CoreSettings& s) -> double& { return verlet(s).dt_s; }),
+      number("dt_min_s", "s", 0.0, 10.0, "lower clamp of the adaptive step (0 = dt_s / 10)",
+             [verlet](CoreSettings& s) -> double& { return verlet(s).dt_min_s; }),
+      number("damping_scale", "", 0.0, 1e6, "multiplies the critical-damping rule",
+             [verlet](CoreSettings& s) -> double& { return verlet(s).damping_scale; }),
+      choice<StoppingRule>("stopping_rule", {"iterations", "displacement", "time_budget"},
+                           {StoppingRule::iterations, StoppingRule::displacement, StoppingRule::time_budget},
+                           "when a frame's solve stops (applies to either solver)",
+                           [verlet](CoreSettings& s) -> StoppingRule& { return verlet(s).stopping_rule; }),
+      integer("max_iterations", "count", 1, 1000000, "iterations per frame (exact for iterations, a cap otherwise)",
+              [verlet](CoreSettings& s) -> int& { return verlet(s).max_iterations; }),
+      number("displacement_tolerance_m", "m", 0.0, 1.0,
+             "displacement rule: stop when the mean free-particle step falls below this",
+             [verlet](CoreSettings& s) -> double& { return verlet(s).displacement_tolerance_m; }),
+      number("time_budget_ms", "ms", 0.0, 1e6, "time_budget rule: stop when the solve has run this long",
+             [verlet](CoreSettings& s) -> double& { return verlet(s).time_budget_ms; }),
+      boolean("warm_start", "each frame starts from the previous result moved with the bones",
+              [](CoreSettings& s) -> bool& { return s.stream.warm_start; }),
+      // Collision
+      boolean("collisions", "sphere collision muscle-bone and muscle-muscle",
+              [](CoreSettings& s) -> bool& { return s.pipeline.simulation.collisions; }),
+      choice<BroadPhaseKind>("broad_phase", {"octree", "hash_grid"}, {BroadPhaseKind::octree, BroadPhaseKind::hash_grid},
+                             "how overlapping sphere pairs are found",
+                             [](CoreSettings& s) -> BroadPhaseKind& { return s.pipeline.simulation.collision.broad_phase; }),
+      number("bone_reach_margin_m", "m", 0.0, 10.0, "a bone is tested only where its spheres grown by this reach a muscle",
+             [](CoreSettings& s) -> double& { return s.pipeline.simulation.collision.bone_reach_margin_m; }),
+      // Surfaces
+      boolean("surfaces", "precompute surface skinning",
+              [](CoreSettings& s) -> bool& { return s.pipeline.skin_surfaces; }),
+      boolean("surface_metrics", "precompute the volume and surface-inside-bone metrics",
+              [](CoreSettings& s) -> bool& { return s.pipeline.measure_fidelity; }),
+      choice<SkinningMethod>("skinning_method", {"nearest_average", "mean_value", "embedded"},
+                             {SkinningMethod::nearest_average, SkinningMethod::mean_value, SkinningMethod::embedded},
+                             "how surface vertices follow the particles",
+                             [](CoreSettings& s) -> SkinningMethod& { return s.pipeline.skinning.method; }),
+      integer("skinning_nearest_particles", "count", 1, 1000, "nearest_average: particles per surface vertex",
+              [](CoreSettings& s) -> int& { return s.pipeline.skinning.nearest_particles; }),
+      choice<CageKind>("skinning_cage", {"convex_hull", "fibre_tube"}, {CageKind::convex_hull, CageKind::fibre_tube},
+                       "mean_value: how the cage is triangulated",
+                       [](CoreSettings& s) -> CageKind& { return s.pipeline.skinning.cage; }),
+      // Stream
+      number("max_bone_speed_m_per_s", "m/s", 1e-6, 1e6, "a bone centre faster than this between poses is a teleport",
+             [](CoreSettings& s) -> double& { return s.stream.max_bone_speed_m_per_s; }),
+      number("max_bone_angular_speed_rad_per_s", "rad/s", 1e-6, 1e6, "a bone turning faster than this is a teleport",
+             [](CoreSettings& s) -> double& { return s.stream.max_bone_angular_speed_rad_per_s; }),
+      number("unchanged_translation_m", "m", 0.0, 1.0, "no bone moved more than this (and turned less): not solved again",
+             [](CoreSettings& s) -> double& { return s.stream.unchanged_translation_m; }),
+      number("unchanged_rotation_rad", "rad", 0.0, 1.0, "no bone turned more than this (and moved less): not solved again",
+             [](CoreSettings& s) -> double& { return s.stream.unchanged_rotation_rad; }),
+  };
+}
+
+std::string formatted(double value, SettingSpec::Kind kind) {
+  return kind == Kind::integer ? std::to_string(static_cast<long long>(value)) : std::to_string(value);
+}
+
+}  // namespace
+
+const std::vector<SettingSpec>& coreSettingSpecs() {
+  static const std::vector<SettingSpec> table = buildTable();
+  return table;
+}
+
+const SettingSpec* findSetting(const std::string& name) {
+  for (const SettingSpec& spec : coreSettingSpecs())
+    if (spec.name == name) return &spec;
+  return nullptr;
+}
+
+std::string checkSetting(const SettingSpec& spec, const SettingValue& value) {
+  switch (spec.kind) {
+    case Kind::boolean:
+      return std::holds_alternative<bool>(value) ? "" : "has the wrong type";
+    case Kind::choice: {
+      if (!std::holds_alternative<std::string>(value)) return "must be a string";
+      const std::string& text = std::get<std::string>(value);
+      std::string accepted;
+      for (const std::string& name : spec.choices) {
+        if (name == text) return "";
+        accepted += (accepted.empty() ? "" : ", ") + name;
+      }
+      return "'" + text + "' is not one of: " + accepted;
+    }
+    case Kind::integer: {
+      double number = 0;
+      if (const int* i = std::get_if<int>(&value)) {
+        number = *i;
+      } else if (const double* d = std::get_if<double>(&value)) {
+        // A float with no fractional part (30.0) counts as an integer; anything else is never rounded silently.
+        if (!std::isfinite(*d) || *d != std::floor(*d)) return "is " + std::to_string(*d) + ", must be an integer";
+        number = *d;
+      } else {
+        return "must be an integer";
+      }
+      if (number < spec.min || number > spec.max)
+        return "is " + formatted(number, spec.kind) + ", must be in [" + formatted(spec.min, spec.kind) + ", " +
+               formatted(spec.max, spec.kind) + "]";
+      return "";
+    }
+    case Kind::number: {
+      if (!std::holds_alternative<int>(value) && !std::holds_alternative<double>(value)) return "must be a number";
+      const double number = asNumber(value);
+      if (!(number >= spec.min && number <= spec.max))
+        return "is " + std::to_string(number) + ", must be in [" + std::to_string(spec.min) + ", " +
+               std::to_string(spec.max) + "]";
+      return "";
+    }
+  }
+  return "has an unknown kind";
+}
+
+CoreSettings nodeDefaultSettings() {
+  CoreSettings settings;
+  settings.pipeline.simulation.solver.max_iterations = 30;
+  settings.pipeline.simulation.solver.time_budget_ms = 12.0;
+  return settings;
+}
+
+void readSettingsYaml(const std::string& path, CoreSettings& settings) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(path + ": cannot read the settings: " + e.what());
+  }
+  if (!root.IsMap()) throw std::invalid_argument(path + ": the settings file must be a map of keys");
+  for (const SettingSpec& spec : coreSettingSpecs()) {
+    const YAML::Node node = root[spec.name];
+    if (!node.IsDefined() || node.IsNull()) continue;
+    if (!node.IsScalar()) throw std::invalid_argument(path + ": " + spec.name + " must be a single value");
+    // YAML's own typing, as rosparam reads the same file: booleans, integers, floating-point numbers, strings.
+    const std::string& text = node.Scalar();
+    SettingValue value = text;
+    if (node.Tag() != "!") {
+      if (text == "true" || text == "false")
+        value = text == "true";
+      else if (std::regex_match(text, std::regex("[-+]?[0-9]+")))
+        value = std::stoi(text);
+      else if (std::regex_match(text, std::regex("[-+]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][-+]?[0-9]+)?")))
+        value = std::stod(text);
+    }
+    if (const std::string problem = checkSetting(spec, value); !problem.empty())
+      throw std::invalid_argument(path + ": " + spec.name + " " + problem);
+    spec.set(settings, value);
+  }
+}
+
+}  // namespace muscle_deformation
