@@ -43,6 +43,21 @@ bool sameWinding(const Triangle& a, const Triangle& b) {
   return false;
 }
 
+using Edge = std::pair<int, int>;  // smaller vertex index first
+
+Edge edgeOf(const Triangle& t, int k) {
+  const int a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
+  return {std::min(a, b), std::max(a, b)};
+}
+
+// How many triangles use each edge.
+std::map<Edge, int> edgeUses(const IndexedSurface& surface) {
+  std::map<Edge, int> uses;
+  for (const Triangle& t : surface.triangles)
+    for (int k = 0; k < 3; ++k) ++uses[edgeOf(t, k)];
+  return uses;
+}
+
 vtkSmartPointer<vtkPolyData> toPolyData(const IndexedSurface& surface) {
   vtkNew<vtkPoints> points;
   points->SetDataTypeToDouble();
@@ -144,20 +159,15 @@ long removeDuplicates(IndexedSurface& surface) {
 
 // Every triangle on an edge shared by three or more triangles goes; hole filling closes what is left.
 long removeNonManifold(IndexedSurface& surface) {
-  std::map<std::pair<int, int>, int> uses;
-  auto edge = [](int a, int b) { return std::make_pair(std::min(a, b), std::max(a, b)); };
-  for (const Triangle& t : surface.triangles)
-    for (int k = 0; k < 3; ++k) ++uses[edge(t[static_cast<std::size_t>(k)], t[static_cast<std::size_t>((k + 1) % 3)])];
+  std::map<Edge, int> uses = edgeUses(surface);
   const std::size_t before = surface.triangles.size();
-  surface.triangles.erase(
-      std::remove_if(surface.triangles.begin(), surface.triangles.end(),
-                     [&](const Triangle& t) {
-                       for (int k = 0; k < 3; ++k)
-                         if (uses[edge(t[static_cast<std::size_t>(k)], t[static_cast<std::size_t>((k + 1) % 3)])] > 2)
-                           return true;
-                       return false;
-                     }),
-      surface.triangles.end());
+  surface.triangles.erase(std::remove_if(surface.triangles.begin(), surface.triangles.end(),
+                                         [&](const Triangle& t) {
+                                           for (int k = 0; k < 3; ++k)
+                                             if (uses[edgeOf(t, k)] > 2) return true;
+                                           return false;
+                                         }),
+                          surface.triangles.end());
   return static_cast<long>(before - surface.triangles.size());
 }
 
@@ -173,13 +183,7 @@ long keepLargestShell(IndexedSurface& surface) {
 }
 
 bool hasBoundary(const IndexedSurface& surface) {
-  std::map<std::pair<int, int>, int> uses;
-  for (const Triangle& t : surface.triangles)
-    for (int k = 0; k < 3; ++k) {
-      const int a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
-      ++uses[std::make_pair(std::min(a, b), std::max(a, b))];
-    }
-  for (const auto& [edge, count] : uses)
+  for (const auto& [edge, count] : edgeUses(surface))
     if (count == 1) return true;
   return false;
 }
@@ -195,17 +199,31 @@ long fillHoles(IndexedSurface& surface) {
   return static_cast<long>(surface.triangles.size()) - static_cast<long>(before);
 }
 
+TriangleMesh toMesh(const IndexedSurface& surface) {
+  // Drop vertices no triangle uses, keeping the order of the rest.
+  std::vector<int> new_index(surface.vertices.size(), -1);
+  for (const Triangle& t : surface.triangles)
+    for (const int v : t) new_index[static_cast<std::size_t>(v)] = 0;
+  int next = 0;
+  for (int& index : new_index)
+    if (index == 0) index = next++;
+  TriangleMesh mesh;
+  mesh.vertices.resize(3, next);
+  for (std::size_t v = 0; v < surface.vertices.size(); ++v)
+    if (new_index[v] >= 0) mesh.vertices.col(new_index[v]) = surface.vertices[v];
+  mesh.triangles.resize(3, static_cast<Eigen::Index>(surface.triangles.size()));
+  for (std::size_t t = 0; t < surface.triangles.size(); ++t)
+    for (int k = 0; k < 3; ++k)
+      mesh.triangles(k, static_cast<Eigen::Index>(t)) =
+          new_index[static_cast<std::size_t>(surface.triangles[t][static_cast<std::size_t>(k)])];
+  return mesh;
+}
+
 // Closes the holes vtkFillHolesFilter leaves (measured on OpenSim's pelvis.vtp: loops through a vertex where two
 // holes touch) with a fan from each loop's centroid. Winding is left to orient().
 long fanFillRemainingHoles(IndexedSurface& surface) {
-  std::map<std::pair<int, int>, int> uses;
-  for (const Triangle& t : surface.triangles)
-    for (int k = 0; k < 3; ++k) {
-      const int a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
-      ++uses[std::make_pair(std::min(a, b), std::max(a, b))];
-    }
   std::multimap<int, int> boundary;  // vertex -> neighbour along a boundary edge (both directions)
-  for (const auto& [edge, count] : uses)
+  for (const auto& [edge, count] : edgeUses(surface))
     if (count == 1) {
       boundary.emplace(edge.first, edge.second);
       boundary.emplace(edge.second, edge.first);
@@ -260,39 +278,13 @@ long orient(IndexedSurface& surface) {
   normals->Update();
   IndexedSurface oriented = fromPolyData(normals->GetOutput());
   if (oriented.triangles.size() != before.size()) return 0;  // unexpected: keep the input's winding
-  TriangleMesh mesh;
-  mesh.vertices.resize(3, static_cast<Eigen::Index>(oriented.vertices.size()));
-  for (std::size_t v = 0; v < oriented.vertices.size(); ++v) mesh.vertices.col(static_cast<Eigen::Index>(v)) = oriented.vertices[v];
-  mesh.triangles.resize(3, static_cast<Eigen::Index>(oriented.triangles.size()));
-  for (std::size_t t = 0; t < oriented.triangles.size(); ++t)
-    for (int k = 0; k < 3; ++k) mesh.triangles(k, static_cast<Eigen::Index>(t)) = oriented.triangles[t][static_cast<std::size_t>(k)];
-  if (enclosedVolume(mesh) < 0)
+  if (enclosedVolume(toMesh(oriented)) < 0)
     for (Triangle& t : oriented.triangles) std::swap(t[1], t[2]);
   long flipped = 0;
   for (std::size_t t = 0; t < before.size(); ++t)
     if (!sameWinding(before[t], oriented.triangles[t])) ++flipped;
   surface = std::move(oriented);
   return flipped;
-}
-
-TriangleMesh toMesh(const IndexedSurface& surface) {
-  // Drop vertices no triangle uses, keeping the order of the rest.
-  std::vector<int> new_index(surface.vertices.size(), -1);
-  for (const Triangle& t : surface.triangles)
-    for (const int v : t) new_index[static_cast<std::size_t>(v)] = 0;
-  int next = 0;
-  for (int& index : new_index)
-    if (index == 0) index = next++;
-  TriangleMesh mesh;
-  mesh.vertices.resize(3, next);
-  for (std::size_t v = 0; v < surface.vertices.size(); ++v)
-    if (new_index[v] >= 0) mesh.vertices.col(new_index[v]) = surface.vertices[v];
-  mesh.triangles.resize(3, static_cast<Eigen::Index>(surface.triangles.size()));
-  for (std::size_t t = 0; t < surface.triangles.size(); ++t)
-    for (int k = 0; k < 3; ++k)
-      mesh.triangles(k, static_cast<Eigen::Index>(t)) =
-          new_index[static_cast<std::size_t>(surface.triangles[t][static_cast<std::size_t>(k)])];
-  return mesh;
 }
 
 }  // namespace
