@@ -2,9 +2,10 @@
 
 #include "muscle_deformation/core/pipeline/settings_table.hpp"
 
-#include <cmath>
 #include <filesystem>
+#include <optional>
 #include <stdexcept>
+#include <variant>
 
 namespace muscle_deformation::node {
 namespace {
@@ -24,46 +25,22 @@ class ParameterReader {
     if (raw.getType() != XmlRpc::XmlRpcValue::TypeString) fail(name, "has the wrong type");
     value = static_cast<std::string>(raw);
   }
+  // Booleans, integers and numbers are checked like the core's settings (checkSetting), so every parameter words
+  // its problems alike: e.g. roscpp's getParam(int) would round 30.5 silently, here it is refused.
   void readBool(const std::string& name, bool& value) const {
-    XmlRpc::XmlRpcValue raw;
-    if (!source_.get(name, raw)) return;
-    if (raw.getType() != XmlRpc::XmlRpcValue::TypeBoolean) fail(name, "has the wrong type");
-    value = static_cast<bool>(raw);
+    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::boolean, 0, 0))) value = std::get<bool>(*read);
   }
   void readDouble(const std::string& name, double& value, double min, double max) const {
-    XmlRpc::XmlRpcValue raw;
-    if (!source_.get(name, raw)) return;
-    double read_value = 0;
-    if (raw.getType() == XmlRpc::XmlRpcValue::TypeDouble)
-      read_value = static_cast<double>(raw);
-    else if (raw.getType() == XmlRpc::XmlRpcValue::TypeInt)
-      read_value = static_cast<int>(raw);
-    else
-      fail(name, "must be a number");
-    if (!(read_value >= min && read_value <= max))
-      fail(name, "is " + std::to_string(read_value) + ", must be in [" + std::to_string(min) + ", " +
-                     std::to_string(max) + "]");
-    value = read_value;
+    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::number, min, max)))
+      value = std::holds_alternative<int>(*read) ? std::get<int>(*read) : std::get<double>(*read);
   }
-  // roscpp's getParam(int) rounds a floating-point value silently: accept only integers (a float with no fractional
-  // part, e.g. 30.0, counts as one).
   void readInt(const std::string& name, int& value, int min, int max) const {
-    XmlRpc::XmlRpcValue raw;
-    if (!source_.get(name, raw)) return;
-    double number = 0;
-    if (raw.getType() == XmlRpc::XmlRpcValue::TypeInt) {
-      number = static_cast<int>(raw);
-    } else if (raw.getType() == XmlRpc::XmlRpcValue::TypeDouble) {
-      number = static_cast<double>(raw);
-      if (!std::isfinite(number) || number != std::floor(number))
-        fail(name, "is " + std::to_string(number) + ", must be an integer");
-    } else {
-      fail(name, "must be an integer");
-    }
-    if (number < min || number > max)
-      fail(name, "is " + std::to_string(static_cast<long long>(number)) + ", must be in [" + std::to_string(min) +
-                     ", " + std::to_string(max) + "]");
-    value = static_cast<int>(number);
+    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::integer, min, max)))
+      value = std::holds_alternative<int>(*read) ? std::get<int>(*read) : static_cast<int>(std::get<double>(*read));
+  }
+  // One setting of the core's table into `settings`.
+  void readSetting(const SettingSpec& spec, CoreSettings& settings) const {
+    if (const auto read = readChecked(spec)) spec.set(settings, *read);
   }
   template <typename Enum, typename Parse>
   void readEnum(const std::string& name, Enum& value, Parse parse) const {
@@ -99,6 +76,38 @@ class ParameterReader {
   }
 
  private:
+  // The parameter's value, or nothing when it is not set; refuses (fail) a value checkSetting does not accept.
+  std::optional<SettingValue> readChecked(const SettingSpec& spec) const {
+    XmlRpc::XmlRpcValue raw;
+    if (!source_.get(spec.name, raw)) return std::nullopt;  // keep the default
+    const SettingValue value = valueOf(spec.kind, raw);
+    if (const std::string problem = checkSetting(spec, value); !problem.empty()) fail(spec.name, problem);
+    return value;
+  }
+  // A node-only parameter described like a setting of the core's table, for checkSetting.
+  static SettingSpec specOf(const std::string& name, SettingSpec::Kind kind, double min, double max) {
+    SettingSpec spec;
+    spec.name = name;
+    spec.kind = kind;
+    spec.min = min;
+    spec.max = max;
+    return spec;
+  }
+  static SettingValue valueOf(SettingSpec::Kind kind, XmlRpc::XmlRpcValue& raw) {
+    switch (raw.getType()) {
+      case XmlRpc::XmlRpcValue::TypeBoolean:
+        return static_cast<bool>(raw);
+      case XmlRpc::XmlRpcValue::TypeInt:
+        return static_cast<int>(raw);
+      case XmlRpc::XmlRpcValue::TypeDouble:
+        return static_cast<double>(raw);
+      case XmlRpc::XmlRpcValue::TypeString:
+        return static_cast<std::string>(raw);
+      default:  // a list or map: a value of a type the kind never accepts, so checkSetting names the type expected
+        return kind == SettingSpec::Kind::boolean ? SettingValue(0) : SettingValue(false);
+    }
+  }
+
   const ParameterSource& source_;
 };
 
@@ -141,20 +150,7 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   p.readString("fixed_frame", settings.fixed_frame);
   if (settings.fixed_frame.empty()) p.fail("fixed_frame", "must not be empty");
 
-  for (const SettingSpec& spec : coreSettingSpecs()) {
-    XmlRpc::XmlRpcValue raw;
-    if (!parameters.get(spec.name, raw)) continue;  // keep the default
-    SettingValue value;
-    switch (raw.getType()) {
-      case XmlRpc::XmlRpcValue::TypeBoolean: value = static_cast<bool>(raw); break;
-      case XmlRpc::XmlRpcValue::TypeInt: value = static_cast<int>(raw); break;
-      case XmlRpc::XmlRpcValue::TypeDouble: value = static_cast<double>(raw); break;
-      case XmlRpc::XmlRpcValue::TypeString: value = static_cast<std::string>(raw); break;
-      default: p.fail(spec.name, "must be a single value");
-    }
-    if (const std::string problem = checkSetting(spec, value); !problem.empty()) p.fail(spec.name, problem);
-    spec.set(core, value);
-  }
+  for (const SettingSpec& spec : coreSettingSpecs()) p.readSetting(spec, core);
   settings.pipeline = core.pipeline;
   settings.stream.policy = core.stream;
   SimulationSettings& simulation = settings.pipeline.simulation;

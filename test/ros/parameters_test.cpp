@@ -7,7 +7,7 @@
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
-#include <regex>
+#include <variant>
 
 namespace md = muscle_deformation;
 namespace node = muscle_deformation::node;
@@ -24,12 +24,8 @@ XmlRpc::XmlRpcValue toXmlRpc(const YAML::Node& yaml) {
     for (std::size_t i = 0; i < yaml.size(); ++i) array[static_cast<int>(i)] = toXmlRpc(yaml[i]);
     return array;
   }
-  const std::string text = yaml.as<std::string>();
-  if (text == "true" || text == "false") return XmlRpc::XmlRpcValue(text == "true");
-  if (std::regex_match(text, std::regex("[-+]?[0-9]+"))) return XmlRpc::XmlRpcValue(std::stoi(text));
-  if (std::regex_match(text, std::regex("[-+]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][-+]?[0-9]+)?")))
-    return XmlRpc::XmlRpcValue(std::stod(text));
-  return XmlRpc::XmlRpcValue(text);
+  return std::visit([](const auto& value) { return XmlRpc::XmlRpcValue(value); },
+                    md::settingValueOfYamlScalar(yaml.as<std::string>()));
 }
 
 std::map<std::string, XmlRpc::XmlRpcValue> documentedParameters() {

@@ -219,6 +219,15 @@ CoreSettings nodeDefaultSettings() {
   return settings;
 }
 
+SettingValue settingValueOfYamlScalar(const std::string& text) {
+  static const std::regex integer("[-+]?[0-9]+");
+  static const std::regex number("[-+]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][-+]?[0-9]+)?");
+  if (text == "true" || text == "false") return text == "true";
+  if (std::regex_match(text, integer)) return std::stoi(text);
+  if (std::regex_match(text, number)) return std::stod(text);
+  return text;
+}
+
 void readSettingsYaml(const std::string& path, CoreSettings& settings) {
   YAML::Node root;
   try {
@@ -231,17 +240,8 @@ void readSettingsYaml(const std::string& path, CoreSettings& settings) {
     const YAML::Node node = root[spec.name];
     if (!node.IsDefined() || node.IsNull()) continue;
     if (!node.IsScalar()) throw std::invalid_argument(path + ": " + spec.name + " must be a single value");
-    // YAML's own typing, as rosparam reads the same file: booleans, integers, floating-point numbers, strings.
-    const std::string& text = node.Scalar();
-    SettingValue value = text;
-    if (node.Tag() != "!") {
-      if (text == "true" || text == "false")
-        value = text == "true";
-      else if (std::regex_match(text, std::regex("[-+]?[0-9]+")))
-        value = std::stoi(text);
-      else if (std::regex_match(text, std::regex("[-+]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][-+]?[0-9]+)?")))
-        value = std::stod(text);
-    }
+    // A quoted scalar (tag "!") stays a string.
+    const SettingValue value = node.Tag() == "!" ? SettingValue(node.Scalar()) : settingValueOfYamlScalar(node.Scalar());
     if (const std::string problem = checkSetting(spec, value); !problem.empty())
       throw std::invalid_argument(path + ": " + spec.name + " " + problem);
     spec.set(settings, value);

@@ -45,6 +45,9 @@ std::string checkSetting(const SettingSpec& spec, const SettingValue& value);
 // (the streamed frame's 30 iterations and 12 ms budget, docs/BENCHMARKS.md).
 CoreSettings nodeDefaultSettings();
 
+// A YAML scalar typed as rosparam types the same file: true/false, an integer, a floating-point number, else the text.
+SettingValue settingValueOfYamlScalar(const std::string& text);
+
 // Reads every setting of the table that the YAML map at `path` holds (other keys are left to their owners) into
 // `settings`. Throws std::invalid_argument naming the file, the key and the problem.
 void readSettingsYaml(const std::string& path, CoreSettings& settings);
