@@ -25,7 +25,7 @@ inline NodeDefaults loadNodeDefaults() {
   md::readSettingsYaml(std::string(MD_PACKAGE_DIR) + "/config/muscle_deformation.yaml", settings);
   NodeDefaults defaults;
   defaults.simulation = settings.pipeline.simulation;
-  defaults.simulation.local_global.max_iterations = defaults.simulation.solver.max_iterations;  // one cap, as the node
+  md::shareStoppingRule(defaults.simulation);  // one set of stopping parameters, as the node
   defaults.stream = settings.stream;
   return defaults;
 }

@@ -59,7 +59,7 @@ TEST(SettingsTable, BadValuesAreDescribed) {
   EXPECT_EQ(md::checkSetting(particles, md::SettingValue(std::string("many"))), "must be an integer");
   const md::SettingSpec& rule = *md::findSetting("stopping_rule");
   EXPECT_EQ(md::checkSetting(rule, md::SettingValue(std::string("forever"))),
-            "'forever' is not one of: iterations, displacement, time_budget");
+            "'forever' is not one of: iterations, displacement, time_budget, force_residual");
   EXPECT_EQ(md::checkSetting(*md::findSetting("collisions"), md::SettingValue(1)), "has the wrong type");
   EXPECT_EQ(md::checkSetting(*md::findSetting("dt_s"), md::SettingValue(true)), "must be a number");
   EXPECT_EQ(md::findSetting("no_such_setting"), nullptr);

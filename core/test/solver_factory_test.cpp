@@ -28,8 +28,8 @@ SimulationSettings smallSettings(SolverKind kind) {
 TEST(SolverFactory, BuildsTheKindAskedAndNamesIt) {
   const SyntheticScene scene = makeSyntheticThigh(1, 4);
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{});
-  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global}) {
-    const std::unique_ptr<SoftBodySolver> solver = makeSolver(SolverChoice{kind, {}, {}}, system);
+  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent}) {
+    const std::unique_ptr<SoftBodySolver> solver = makeSolver(SolverChoice{kind, {}, {}, {}}, system);
     ASSERT_NE(solver, nullptr);
     EXPECT_EQ(solver->kind(), kind);
     EXPECT_EQ(solverKindFromString(toString(kind)), kind);

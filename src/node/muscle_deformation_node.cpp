@@ -500,6 +500,12 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     PipelineSettings settings = settings_.pipeline;
     settings.simulation.solver_kind = settings_.service.solver_kind;
     settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
+    // Only block descent measures a force residual; another service solver runs its iteration count instead.
+    if (settings.simulation.solver.stopping_rule == StoppingRule::force_residual &&
+        settings_.service.solver_kind != SolverKind::block_descent) {
+      settings.simulation.solver.stopping_rule = StoppingRule::iterations;
+      shareStoppingRule(settings.simulation);
+    }
     std::vector<MuscleDescription> descriptions;
     std::vector<Muscle> muscles;
     for (std::size_t index : indices) {
@@ -516,7 +522,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // solve stop when it is met (the only convergence criterion), a time budget bounds its wall time, and the node's
   // max_solve_time_s bounds every call.
   const SolverSettings& node_solver = settings_.pipeline.simulation.solver;
-  const StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
+  StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
+  // Only block descent measures a force residual; another service solver runs its iteration count instead.
+  if (rule == StoppingRule::force_residual && settings_.service.solver_kind != SolverKind::block_descent)
+    rule = StoppingRule::iterations;
   const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
   const double tolerance_m =
       request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_solver.displacement_tolerance_m;

@@ -113,13 +113,6 @@ class ParameterReader {
 
 }  // namespace
 
-void shareStoppingRule(SimulationSettings& simulation) {
-  simulation.local_global.stopping_rule = simulation.solver.stopping_rule;
-  simulation.local_global.max_iterations = simulation.solver.max_iterations;
-  simulation.local_global.displacement_tolerance_m = simulation.solver.displacement_tolerance_m;
-  simulation.local_global.time_budget_ms = simulation.solver.time_budget_ms;
-}
-
 bool NodeHandleParameters::get(const std::string& name, XmlRpc::XmlRpcValue& value) const {
   return node_.hasParam(name) && node_.getParam(name, value);
 }
@@ -163,12 +156,17 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   p.readDouble("service_warm_max_rotation_rad", service.warm_max_rotation_rad, 0.0, 7.0);
   p.readDouble("max_solve_time_s", settings.max_solve_time_s, 1e-3, 3600.0);
   shareStoppingRule(simulation);
+  if (simulation.solver.stopping_rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
+    p.fail("stopping_rule", "force_residual is measured by the block_descent solver only (solver is " +
+                                toString(simulation.solver_kind) + ")");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
   if (simulation.solver_kind == SolverKind::local_global)
     if (const std::string problem = validate(simulation.local_global); !problem.empty()) p.fail("lbfgs_history", problem);
   LocalGlobalSettings service_local_global = simulation.local_global;
   service_local_global.lbfgs_history = service.lbfgs_history;
+  if (service_local_global.stopping_rule == StoppingRule::force_residual)
+    service_local_global.stopping_rule = StoppingRule::iterations;  // as the service runs it (node's handler)
   if (service.solver_kind == SolverKind::local_global)
     if (const std::string problem = validate(service_local_global); !problem.empty())
       p.fail("service_lbfgs_history", problem + " (chebyshev_rho and volume_weight apply to the service too)");

@@ -158,7 +158,14 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
   EXPECT_EQ(errorOf({{"muscles", mixed}}), prefix + "muscles must be a list of muscle names or tags");
 
   const std::string unknown_rule = errorOf({{"stopping_rule", XmlRpc::XmlRpcValue(std::string("forever"))}});
-  EXPECT_EQ(unknown_rule, prefix + "stopping_rule 'forever' is not one of: iterations, displacement, time_budget");
+  EXPECT_EQ(unknown_rule,
+            prefix + "stopping_rule 'forever' is not one of: iterations, displacement, time_budget, force_residual");
+  EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("verlet"))},
+                     {"stopping_rule", XmlRpc::XmlRpcValue(std::string("force_residual"))}}),
+            prefix + "stopping_rule force_residual is measured by the block_descent solver only (solver is verlet)");
+  EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("block_descent"))},
+                     {"stopping_rule", XmlRpc::XmlRpcValue(std::string("force_residual"))}}),
+            "");
   const std::string replaced = errorOf({{"reset_translation_m", XmlRpc::XmlRpcValue(0.1)}});
   EXPECT_EQ(replaced.rfind(prefix + "reset_translation_m no longer exists", 0), 0u) << replaced;
   EXPECT_NE(replaced.find("max_bone_speed_m_per_s"), std::string::npos) << replaced;

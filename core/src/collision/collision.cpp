@@ -49,7 +49,9 @@ struct CollisionWorld::Impl {
   // Muscle objects (broad-phase ids 0 .. muscle_count-1): the particle behind each sphere and current spheres.
   std::vector<std::vector<std::int32_t>> sphere_particle;
   std::vector<std::vector<std::uint8_t>> sphere_fixed;
-  std::vector<SphereSet> muscle_spheres;
+  std::vector<SphereSet> muscle_spheres;  // radii grown by `inflation` while contacts are found with a margin
+  std::vector<Eigen::VectorXd> muscle_radius;  // the spheres' own radii
+  double inflation = 0;
   std::vector<AlignedBox> muscle_box;
   bool rebuild_muscle_hierarchies = false;  // set by a new pose, consumed by the next gather
 
@@ -106,6 +108,7 @@ struct CollisionWorld::Impl {
         spheres.radius[static_cast<Eigen::Index>(k)] = system.radius[particles[k]];
         sphere_fixed[static_cast<std::size_t>(m)].push_back(system.is_fixed[static_cast<std::size_t>(particles[k])]);
       }
+      muscle_radius.push_back(spheres.radius);
       broad->update(m, spheres, true);
     }
 
@@ -125,6 +128,16 @@ struct CollisionWorld::Impl {
     displacement = Eigen::Matrix3Xd::Zero(3, n);
     contact_count.assign(static_cast<std::size_t>(n), 0);
     touched.reserve(static_cast<std::size_t>(n));
+  }
+
+  // Grows every muscle sphere by `margin` for detection (pairs that may touch within a step), or restores it (0).
+  void inflate(double margin) {
+    if (margin == inflation) return;
+    for (int m = 0; m < muscle_count; ++m)
+      muscle_spheres[static_cast<std::size_t>(m)].radius =
+          muscle_radius[static_cast<std::size_t>(m)].array() + margin;
+    inflation = margin;
+    rebuild_muscle_hierarchies = true;
   }
 
   void gatherMuscles(const ParticleState& state) {
@@ -283,6 +296,7 @@ void CollisionWorld::setPose(const Pose& pose) {
 
 int CollisionWorld::resolve(ParticleState& state) {
   Impl& w = *impl_;
+  w.inflate(0);
   auto start = Clock::now();
   w.gatherMuscles(state);
   stats_.response_ms += millisecondsSince(start);
@@ -326,8 +340,56 @@ int CollisionWorld::resolve(ParticleState& state) {
   return contacts;
 }
 
+void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contacts, double margin_m) {
+  Impl& w = *impl_;
+  contacts.clear();
+  auto start = Clock::now();
+  w.inflate(std::max(0.0, margin_m));
+  w.gatherMuscles(state);
+  stats_.response_ms += millisecondsSince(start);
+
+  start = Clock::now();
+  w.findMusclePairs();
+  std::int64_t pairs_found = static_cast<std::int64_t>(w.muscle_pairs.size());
+  int muscle_contacts = 0, bone_contacts = 0;
+  for (const ObjectSpherePair& p : w.muscle_pairs) {
+    const std::size_t a = static_cast<std::size_t>(p.first_object), b = static_cast<std::size_t>(p.second_object);
+    if (w.sphere_fixed[a][static_cast<std::size_t>(p.first)] && w.sphere_fixed[b][static_cast<std::size_t>(p.second)])
+      continue;
+    contacts.pairs.push_back({w.sphere_particle[a][static_cast<std::size_t>(p.first)],
+                              w.sphere_particle[b][static_cast<std::size_t>(p.second)],
+                              w.muscle_radius[a][p.first] + w.muscle_radius[b][p.second]});
+    ++muscle_contacts;
+  }
+  stats_.muscle_cd_ms += millisecondsSince(start);
+
+  start = Clock::now();
+  const int skipped = w.forEachMuscleBoneOverlap(
+      settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
+    pairs_found += static_cast<std::int64_t>(w.pairs.size());
+    const std::size_t um = static_cast<std::size_t>(m);
+    const SphereSet& bone = w.bone_world[static_cast<std::size_t>(b)];
+    for (const SpherePair& pair : w.pairs) {
+      if (w.sphere_fixed[um][static_cast<std::size_t>(pair.first)]) continue;  // attachment against its bone
+      contacts.obstacles.push_back({w.sphere_particle[um][static_cast<std::size_t>(pair.first)],
+                                    bone.centre.col(pair.second),
+                                    w.muscle_radius[um][pair.first] + bone.radius[pair.second]});
+      ++bone_contacts;
+    }
+  });
+  stats_.bone_cd_ms += millisecondsSince(start);
+
+  stats_.contacts = muscle_contacts + bone_contacts;
+  stats_.muscle_muscle_contacts = muscle_contacts;
+  stats_.muscle_bone_contacts = bone_contacts;
+  stats_.bones_skipped = skipped;
+  ++stats_.resolve_calls;
+  last_pairs_found_ = pairs_found;
+}
+
 CollisionStats CollisionWorld::measure(const ParticleState& state) const {
   Impl& w = *impl_;  // the broad phase's trees and grids are caches: refreshing them does not change the world
+  w.inflate(0);
   w.gatherMuscles(state);
   PenetrationSum muscle_sum, bone_sum;
   w.findMusclePairs();

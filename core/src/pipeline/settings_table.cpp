@@ -65,6 +65,7 @@ std::vector<SettingSpec> buildTable() {
   const auto model = [](CoreSettings& s) -> ModelSettings& { return s.pipeline.simulation.model; };
   const auto verlet = [](CoreSettings& s) -> SolverSettings& { return s.pipeline.simulation.solver; };
   const auto local_global = [](CoreSettings& s) -> LocalGlobalSettings& { return s.pipeline.simulation.local_global; };
+  const auto block_descent = [](CoreSettings& s) -> BlockDescentSettings& { return s.pipeline.simulation.block_descent; };
   return {
       // Mass-spring model
       integer("particles_per_fibre", "count", 2, 10000, "particles sampled along each fibre",
@@ -85,7 +86,8 @@ std::vector<SettingSpec> buildTable() {
       number("density_kg_per_m3", "kg/m^3", 1e-6, 1e6, "muscle density, for the particle masses",
              [model](CoreSettings& s) -> double& { return model(s).density_kg_per_m3; }),
       // Solver
-      choice<SolverKind>("solver", {"verlet", "local_global"}, {SolverKind::verlet, SolverKind::local_global},
+      choice<SolverKind>("solver", {"verlet", "local_global", "block_descent"},
+                         {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent},
                          "the solver of the mass-spring system",
                          [](CoreSettings& s) -> SolverKind& { return s.pipeline.simulation.solver_kind; }),
       number("volume_weight", "", 0.0, 1e6, "local_global: weight of the per-tetrahedron volume term (0 = off)",
@@ -94,6 +96,15 @@ std::vector<SettingSpec> buildTable() {
              [local_global](CoreSettings& s) -> double& { return local_global(s).chebyshev_rho; }),
       integer("lbfgs_history", "count", 0, 1000, "local_global: L-BFGS curvature pairs kept (0 = plain iterations)",
               [local_global](CoreSettings& s) -> int& { return local_global(s).lbfgs_history; }),
+      integer("threads", "count", 0, 1024, "block_descent: worker threads of a solve (0 = every core)",
+              [block_descent](CoreSettings& s) -> int& { return block_descent(s).threads; }),
+      number("residual_tolerance", "", 0.0, 1e6,
+             "force_residual rule: stop when the RMS net force on the free particles falls below this times the "
+             "springs' material constant",
+             [block_descent](CoreSettings& s) -> double& { return block_descent(s).residual_tolerance; }),
+      number("contact_stiffness_scale", "", 1e-6, 1e9,
+             "block_descent: contact stiffness = this x material constant / median collision radius",
+             [block_descent](CoreSettings& s) -> double& { return block_descent(s).contact_stiffness_scale; }),
       choice<MassRule>("mass_rule", {"uniform", "stiffness_scaled"}, {MassRule::uniform, MassRule::stiffness_scaled},
                        "how particle masses are set (stiffness_scaled: particles on stiff springs made heavier)",
                        [verlet](CoreSettings& s) -> MassRule& { return verlet(s).mass_rule; }),
@@ -106,8 +117,9 @@ std::vector<SettingSpec> buildTable() {
              [verlet](CoreSettings& s) -> double& { return verlet(s).dt_min_s; }),
       number("damping_scale", "", 0.0, 1e6, "multiplies the critical-damping rule",
              [verlet](CoreSettings& s) -> double& { return verlet(s).damping_scale; }),
-      choice<StoppingRule>("stopping_rule", {"iterations", "displacement", "time_budget"},
-                           {StoppingRule::iterations, StoppingRule::displacement, StoppingRule::time_budget},
+      choice<StoppingRule>("stopping_rule", {"iterations", "displacement", "time_budget", "force_residual"},
+                           {StoppingRule::iterations, StoppingRule::displacement, StoppingRule::time_budget,
+                            StoppingRule::force_residual},
                            "when a frame's solve stops (applies to either solver)",
                            [verlet](CoreSettings& s) -> StoppingRule& { return verlet(s).stopping_rule; }),
       integer("max_iterations", "count", 1, 1000000, "iterations per frame (exact for iterations, a cap otherwise)",
@@ -217,6 +229,17 @@ CoreSettings nodeDefaultSettings() {
   settings.pipeline.simulation.solver.max_iterations = 30;
   settings.pipeline.simulation.solver.time_budget_ms = 12.0;
   return settings;
+}
+
+void shareStoppingRule(SimulationSettings& simulation) {
+  const SolverSettings& shared = simulation.solver;
+  LocalGlobalSettings& local_global = simulation.local_global;
+  BlockDescentSettings& block_descent = simulation.block_descent;
+  local_global.stopping_rule = block_descent.stopping_rule = shared.stopping_rule;
+  local_global.max_iterations = block_descent.max_iterations = shared.max_iterations;
+  local_global.displacement_tolerance_m = block_descent.displacement_tolerance_m = shared.displacement_tolerance_m;
+  local_global.time_budget_ms = block_descent.time_budget_ms = shared.time_budget_ms;
+  local_global.limits = block_descent.limits = shared.limits;
 }
 
 SettingValue settingValueOfYamlScalar(const std::string& text) {

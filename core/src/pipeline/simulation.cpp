@@ -23,20 +23,43 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   // The model is final here (radii shrunk for the rest pose), as the solvers need: they read the sphere radii (the
   // local/global contact weights, the adaptive step's boundary particles). The local/global solver factorises its
   // matrix here, once: it depends on the model and settings, not the pose.
-  solver_ = makeSolver(SolverChoice{settings_.solver_kind, settings_.solver, settings_.local_global}, system_);
+  solver_ = makeSolver(
+      SolverChoice{settings_.solver_kind, settings_.solver, settings_.local_global, settings_.block_descent}, system_);
+  if (collision_ && solver_->solvesContacts())
+    solver_->setContactQuery(
+        [this](const ParticleState& state, double margin_m, ContactSet& contacts) {
+          collision_->findContacts(state, contacts, margin_m);
+        });
   state_ = restState(system_);
 }
 
 void MuscleSimulation::reset() { has_previous_ = false; }
 
+void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position) {
+  if (transforms.size() != bones_.size() || position.cols() != system_.particleCount())
+    throw std::invalid_argument("continueFrom: " + std::to_string(transforms.size()) + " transforms and " +
+                                std::to_string(position.cols()) + " positions for " + std::to_string(bones_.size()) +
+                                " bones and " + std::to_string(system_.particleCount()) + " particles");
+  if (!position.allFinite()) throw std::invalid_argument("continueFrom: non-finite position");
+  state_.position = position;
+  state_.previous_position = position;
+  previous_transforms_ = transforms;
+  has_previous_ = true;
+}
+
 void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                                    double time_budget_ms, const SolveLimits& limits) {
   solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
-  for (auto* settings : {&settings_.solver.stopping_rule, &settings_.local_global.stopping_rule}) *settings = rule;
-  settings_.solver.max_iterations = settings_.local_global.max_iterations = max_iterations;
-  settings_.solver.displacement_tolerance_m = settings_.local_global.displacement_tolerance_m = displacement_tolerance_m;
-  settings_.solver.time_budget_ms = settings_.local_global.time_budget_ms = time_budget_ms;
-  settings_.solver.limits = settings_.local_global.limits = limits;
+  for (auto* settings : {&settings_.solver.stopping_rule, &settings_.local_global.stopping_rule,
+                         &settings_.block_descent.stopping_rule})
+    *settings = rule;
+  settings_.solver.max_iterations = settings_.local_global.max_iterations = settings_.block_descent.max_iterations =
+      max_iterations;
+  settings_.solver.displacement_tolerance_m = settings_.local_global.displacement_tolerance_m =
+      settings_.block_descent.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.solver.time_budget_ms = settings_.local_global.time_budget_ms = settings_.block_descent.time_budget_ms =
+      time_budget_ms;
+  settings_.solver.limits = settings_.local_global.limits = settings_.block_descent.limits = limits;
 }
 
 FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
@@ -56,7 +79,12 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   else
     rigidPretransform(system_, transforms, state_);
 
-  if (collision_) {
+  if (collision_ && solver_->solvesContacts()) {
+    collision_->setBoneTransforms(transforms);
+    collision_->resetTiming();
+    stats.solve = solver_->solve(state_);
+    stats.collision = collision_->measure(state_);
+  } else if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
     const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };

@@ -56,6 +56,9 @@ Eigen::Matrix3d projectDeterminant(const Eigen::Matrix3d& f, double target) {
 }  // namespace
 
 std::string validate(const LocalGlobalSettings& s) {
+  if (s.stopping_rule == StoppingRule::force_residual)
+    return "the local/global solver does not measure a force residual (stopping rule force_residual needs solver "
+           "block_descent)";
   if (!(s.time_step_s > 0) || !std::isfinite(s.time_step_s)) return "time_step_s must be positive and finite";
   if (s.iterations_per_step < 1) return "iterations_per_step must be >= 1";
   if (!(s.damping >= 0 && s.damping <= 1)) return "damping must be in [0, 1]";
@@ -538,6 +541,9 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
 void LocalGlobalSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                                     double time_budget_ms, const SolveLimits& limits) {
   if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  if (rule == StoppingRule::force_residual)
+    throw std::invalid_argument("the local/global solver does not measure a force residual (stopping rule "
+                                "force_residual needs solver block_descent)");
   settings_.stopping_rule = rule;
   settings_.max_iterations = max_iterations;
   settings_.displacement_tolerance_m = displacement_tolerance_m;

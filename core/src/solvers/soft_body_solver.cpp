@@ -4,12 +4,20 @@
 
 namespace muscle_deformation {
 
-std::string toString(SolverKind kind) { return kind == SolverKind::verlet ? "verlet" : "local_global"; }
+std::string toString(SolverKind kind) {
+  switch (kind) {
+    case SolverKind::verlet: return "verlet";
+    case SolverKind::local_global: return "local_global";
+    case SolverKind::block_descent: return "block_descent";
+  }
+  return "unknown";
+}
 
 SolverKind solverKindFromString(const std::string& name) {
   if (name == "verlet") return SolverKind::verlet;
   if (name == "local_global") return SolverKind::local_global;
-  throw std::invalid_argument("unknown solver kind '" + name + "' (expected verlet or local_global)");
+  if (name == "block_descent") return SolverKind::block_descent;
+  throw std::invalid_argument("unknown solver kind '" + name + "' (expected verlet, local_global or block_descent)");
 }
 
 }  // namespace muscle_deformation

@@ -10,6 +10,8 @@ std::unique_ptr<SoftBodySolver> makeSolver(const SolverChoice& choice, const Mas
       return std::make_unique<VerletSolver>(system, choice.verlet);
     case SolverKind::local_global:
       return std::make_unique<LocalGlobalSolver>(system, choice.local_global);
+    case SolverKind::block_descent:
+      return std::make_unique<BlockDescentSolver>(system, choice.block_descent);
   }
   throw std::invalid_argument("unknown solver kind " + std::to_string(static_cast<int>(choice.kind)));
 }

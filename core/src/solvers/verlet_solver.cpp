@@ -69,6 +69,9 @@ Eigen::VectorXd stiffnessScaledMass(const MassSpringSystem& system) {
 VerletSolver::VerletSolver(const MassSpringSystem& system, SolverSettings settings)
     : system_(system), settings_(settings) {
   if (settings_.max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  if (settings_.stopping_rule == StoppingRule::force_residual)
+    throw std::invalid_argument("the verlet solver does not measure a force residual (stopping rule force_residual "
+                                "needs solver block_descent)");
   if (!(settings_.dt_s >= 0) || !(settings_.dt_min_s >= 0) || !(settings_.damping_ns_per_m >= 0) ||
       !(settings_.damping_scale >= 0) || !(settings_.displacement_tolerance_m >= 0) ||
       !(settings_.time_budget_ms >= 0))
@@ -252,6 +255,9 @@ bool VerletSolver::attempt(ParticleState& state, const AfterUpdateHook& after_up
 void VerletSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                                double time_budget_ms, const SolveLimits& limits) {
   if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  if (rule == StoppingRule::force_residual)
+    throw std::invalid_argument("the verlet solver does not measure a force residual (stopping rule force_residual "
+                                "needs solver block_descent)");
   settings_.stopping_rule = rule;
   settings_.max_iterations = max_iterations;
   settings_.displacement_tolerance_m = displacement_tolerance_m;

@@ -3,6 +3,7 @@
 
 #include "muscle_deformation/core/pipeline/pose_stream.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
 
 #include <ros/node_handle.h>
 #include <xmlrpcpp/XmlRpcValue.h>
@@ -84,9 +85,8 @@ class MapParameters : public ParameterSource {
 NodeSettings readNodeSettings(const ParameterSource& parameters, const std::string& package_root);
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
 
-// The node's one set of stopping parameters (stopping_rule, max_iterations, tolerances) drives whichever solver runs:
-// copies them from the Verlet settings into the local/global ones.
-void shareStoppingRule(SimulationSettings& simulation);
+// shareStoppingRule (the one set of stopping parameters driving whichever solver runs) is the core's:
+// pipeline/settings_table.hpp.
 
 
 }  // namespace muscle_deformation::node

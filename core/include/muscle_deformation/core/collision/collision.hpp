@@ -12,6 +12,7 @@
 #include "muscle_deformation/core/geometry.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 #include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/solvers/contact_set.hpp"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -63,6 +64,12 @@ class CollisionWorld {
   // One collision pass: detect, accumulate, apply, zero the velocity of collided particles. Returns the number of
   // contacts resolved. Matches VerletSolver's AfterUpdateHook. Allocates nothing once buffers have grown.
   int resolve(ParticleState& state);
+
+  // The sphere pairs at `state` with at least one free particle that overlap or come within `margin_m` of touching, as
+  // contacts for a solver that keeps them in its solve (block descent): a contact's energy is one-sided, so a pair
+  // found within the margin costs nothing until it touches, and a particle that reaches it within a sweep meets it.
+  // Does not change the state. Same detection as resolve(), timed alike.
+  void findContacts(const ParticleState& state, ContactSet& contacts, double margin_m = 0.0);
 
   // Contacts and remaining penetration in `state` (does not change it); timing fields are the accumulated ones.
   CollisionStats measure(const ParticleState& state) const;

@@ -22,6 +22,7 @@ struct SimulationSettings {
   SolverKind solver_kind = SolverKind::verlet;  // which solver MuscleSimulation runs
   SolverSettings solver;                        // for SolverKind::verlet
   LocalGlobalSettings local_global;             // for SolverKind::local_global
+  BlockDescentSettings block_descent;           // for SolverKind::block_descent
   CollisionSettings collision;
   bool collisions = true;  // false: the MSS alone (for comparisons)
 };
@@ -50,6 +51,10 @@ class MuscleSimulation {
   // need them anyway: a frame computes them once.
   FrameStats solve(const BoneTransforms& transforms, StartMode start);
   void reset();  // forget the previous result: the next solve starts cold
+  // Continue from a known result instead of the last solve's: the next warm solve starts from `position` (a state of
+  // this system) solved at `transforms`. Benchmarks start every compared stream from the same converged frame.
+  // Throws std::invalid_argument on a size mismatch or a non-finite position.
+  void continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position);
   // Changes how later solves stop, for whichever solver runs (no rebuild): rule, iteration cap, tolerances, limits.
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
                    const SolveLimits& limits);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/solvers/contact_set.hpp"
 #include "muscle_deformation/core/solvers/solve_control.hpp"
 
 #include <string>
@@ -12,9 +13,10 @@ namespace muscle_deformation {
 enum class SolverKind {
   verlet,        // damped Verlet (verlet_solver.hpp)
   local_global,  // local/global projective iterations (local_global_solver.hpp)
+  block_descent, // per-particle Newton sweeps with contacts in the solve (block_descent_solver.hpp)
 };
 std::string toString(SolverKind kind);
-// Accepts "verlet", "local_global"; throws std::invalid_argument otherwise.
+// Accepts "verlet", "local_global", "block_descent"; throws std::invalid_argument otherwise.
 SolverKind solverKindFromString(const std::string& name);
 
 class SoftBodySolver {
@@ -28,6 +30,10 @@ class SoftBodySolver {
   // Changes how later solves stop (rule, iteration cap, tolerances, limits) without rebuilding anything.
   virtual void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                            double time_budget_ms, const SolveLimits& limits) = 0;
+  // Solvers that keep contacts as energy inside their solve (rather than through `after_update`) say so here and take
+  // the collision stage's contact query; the others ignore it.
+  virtual bool solvesContacts() const { return false; }
+  virtual void setContactQuery(ContactQuery) {}
 };
 
 }  // namespace muscle_deformation

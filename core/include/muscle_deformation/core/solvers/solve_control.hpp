@@ -20,6 +20,9 @@ enum class StoppingRule {
   displacement,  // mean free-particle displacement of an iteration < displacement_tolerance_m and no longer growing
                  // (or max_iterations)
   time_budget,   // wall time of the solve reaches time_budget_ms (or max_iterations)
+  // RMS net force on the free particles below a tolerance relative to the springs' material constant (or
+  // max_iterations); measured by the block descent solver only, the others refuse it.
+  force_residual,
 };
 
 // Bounds every solve obeys whatever its stopping rule, so that no call can run unbounded: a wall-time ceiling and a
@@ -70,6 +73,9 @@ struct SolveStats {
   // 99th percentile of |l - l0| / l0: a robust alarm where max_strain is dominated by a few micrometre springs.
   // Read from a histogram with 16 bins per octave: an upper bound, at most 6.25 % above the exact value.
   double strain_p99 = 0;
+  // Block descent: RMS net force on the free particles in the last sweep over the springs' material constant (k l0);
+  // negative when the solver does not measure it.
+  double residual = -1;
   int contacts = 0;                   // reported by the collision hook, last iteration
   double peak_mean_displacement_m = 0;  // largest mean free-particle displacement of any iteration (all attempts)
   // Divergence (see DivergenceMonitor): each recovery restored the entry state and retried with half the step.

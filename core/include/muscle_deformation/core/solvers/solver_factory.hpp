@@ -1,6 +1,7 @@
 // Builds the solver a SolverKind names from the settings of every solver (each reads only its own).
 #pragma once
 
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/solvers/soft_body_solver.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
@@ -14,6 +15,7 @@ struct SolverChoice {
   SolverKind kind = SolverKind::verlet;
   SolverSettings verlet;
   LocalGlobalSettings local_global;
+  BlockDescentSettings block_descent;
 };
 
 // Keeps a reference to `system`, which must outlive the solver. Build it after everything that changes the model

@@ -1,0 +1,138 @@
+// Quasi-static block descent on the mass-spring energy, in the manner of Vertex Block Descent (Chen, Ibrahim, Yuksel,
+// SIGGRAPH 2024), with contacts as energy in the same solve.
+//
+// The answer of a solve is the equilibrium of the springs and contacts for the fixed particles of the pose: a
+// minimiser of
+//   E(x) = sum_springs k/2 (|x_a - x_b| - l0)^2 + sum_contacts kc/2 max(0, d - |x_p - c|)^2
+// over the free particles, reached from the state the solve starts in (the previous frame moved with the bones, or the
+// rigid pre-transform). A sweep visits every free particle once and moves it by one Newton step of its own 3 x 3
+// problem (the other particles held), with each spring's Hessian projected to be positive semi-definite. Particles
+// are visited colour by colour (a greedy colouring of the spring graph), so the particles of one colour share no
+// spring and are updated in parallel; the result does not depend on the thread count. Contacts are found once per
+// sweep by the collision stage and enter each particle's step as stiff one-sided springs, so a contact is part of the
+// equilibrium rather than a correction the next update undoes.
+//
+// Convergence is a force residual: the root mean square, over free particles, of the net force on each particle when
+// its step is taken, relative to the springs' material constant (k l0, the force of a spring at 100 % strain).
+#pragma once
+
+#include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/solvers/contact_set.hpp"
+#include "muscle_deformation/core/solvers/soft_body_solver.hpp"
+
+#include <Eigen/Core>
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace muscle_deformation {
+
+struct BlockDescentSettings {
+  // Contact stiffness relative to the springs: kc = contact_stiffness_scale x (material constant / median collision
+  // radius), so a contact resists penetration about this many times harder than a spring of one radius' length
+  // resists stretch.
+  double contact_stiffness_scale = 100.0;
+  // Contacts are looked for once per sweep among pairs closer than this many median collision radii to touching, so
+  // that a particle that reaches a sphere during the sweep meets it in its own step.
+  double contact_margin_scale = 0.5;
+  // Newton steps a particle with contacts takes per visit (the contact switches on or off within the step; the
+  // others take one: their energy is smooth).
+  int contact_newton_steps = 3;
+  // Chebyshev semi-iterative acceleration (Wang 2015) of the sweeps: the estimated spectral radius of the plain
+  // iteration, in [0, 1); 0 = off. Starts after chebyshev_delay sweeps of a solve.
+  double chebyshev_rho = 0.0;
+  int chebyshev_delay = 4;
+  // Worker threads for the sweeps (0 = every core). Positions do not depend on it.
+  int threads = 0;
+
+  StoppingRule stopping_rule = StoppingRule::force_residual;
+  int max_iterations = 100;                // sweeps, cap for every rule
+  double residual_tolerance = 1e-3;        // force_residual: relative RMS residual (x material constant)
+  double displacement_tolerance_m = 1e-6;  // displacement: mean free-particle displacement of a sweep
+  double time_budget_ms = 16.0;            // time_budget
+  SolveLimits limits;                      // for every rule
+};
+
+// Returns an empty string when the settings are usable, otherwise what is wrong.
+std::string validate(const BlockDescentSettings& settings);
+
+// Net force on every free particle at `position` (springs only), as the RMS over free particles relative to the
+// springs' material constant: the convergence measure of an equilibrium, for any solver's result. Contacts are not
+// included; benchmarks compare solvers on it at contact-free states or state it beside the penetration.
+double relativeSpringResidual(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
+
+class BlockDescentSolver final : public SoftBodySolver {
+ public:
+  SolverKind kind() const override { return SolverKind::block_descent; }
+  // Colours the spring graph and packs each particle's springs (once). Throws std::invalid_argument on invalid
+  // settings.
+  BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings);
+
+  // Sweeps until the stopping rule is met. Fixed particles keep the positions `state` holds on entry. Contacts come
+  // from the query set with setContactQuery (none without one); `after_update` runs after every sweep like the other
+  // solvers' collision hook (normally empty: contacts are in the solve). A non-finite result puts the entry state back
+  // and reports `diverged`.
+  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits) override;
+  bool solvesContacts() const override { return true; }
+  void setContactQuery(ContactQuery query) override { contact_query_ = std::move(query); }
+
+  void setResidualTolerance(double relative_residual);
+  const BlockDescentSettings& settings() const { return settings_; }
+  int colourCount() const { return static_cast<int>(colour_begin_.size()) - 1; }
+  int threadCount() const { return thread_count_; }
+  double materialConstant() const { return material_constant_n_; }
+  double contactStiffness() const { return contact_stiffness_; }
+  // Relative RMS residual of the last sweep of the last solve (forces when each particle was visited).
+  double lastResidual() const { return last_residual_; }
+  // Squared net force (N^2) on each particle when the last sweep visited it (0 for fixed particles).
+  const Eigen::VectorXd& particleResidualsSquared() const { return residual_squared_; }
+  const ContactSet& lastContacts() const { return contacts_; }
+
+ private:
+  struct NeighbourSpring {
+    std::int32_t other;
+    double stiffness, rest_length;
+  };
+  struct ContactEntry {
+    Eigen::Vector3d centre;  // obstacle centre, or the partner particle's position when the contacts were found
+    double distance;
+    std::int32_t partner;    // particle index of the partner, or -1 for an obstacle
+    bool same_colour;        // the partner is moved in the same parallel step
+  };
+
+  void buildColouring();
+  void gatherContacts(const ParticleState& state);
+  // One sweep over every colour; returns the summed squared residual force and summed |step| of the free particles.
+  void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum);
+
+  const MassSpringSystem& system_;
+  BlockDescentSettings settings_;
+  int thread_count_ = 1;
+  double material_constant_n_ = 1.0;
+  double contact_stiffness_ = 0.0;
+  double contact_margin_m_ = 0.0;
+  double mean_rest_length_ = 0.0;
+  std::vector<std::int32_t> neighbour_begin_;  // per particle, into neighbours_ (while building)
+  std::vector<NeighbourSpring> neighbours_;      // each free particle's springs, in visiting order
+  std::vector<std::int32_t> slot_spring_begin_;  // per visiting slot (index into coloured_particles_), into neighbours_
+  std::vector<std::int32_t> colour_of_;        // per particle, -1 for fixed ones
+  std::vector<std::int32_t> colour_begin_;     // into coloured_particles_
+  std::vector<std::int32_t> coloured_particles_;
+  std::vector<std::int32_t> free_particles_;
+  Eigen::VectorXd regularisation_;             // per particle, N/m: keeps every 3 x 3 block invertible
+
+  ContactQuery contact_query_;
+  ContactSet contacts_;
+  std::vector<std::int32_t> contact_begin_;    // per particle, into contact_entries_
+  std::vector<ContactEntry> contact_entries_;
+
+  Eigen::VectorXd residual_squared_, step_length_;  // per particle, of the current sweep
+  Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
+  double last_residual_ = 0.0;
+};
+
+}  // namespace muscle_deformation

@@ -1,0 +1,459 @@
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+namespace muscle_deformation {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double millisecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+double median(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+  std::nth_element(values.begin(), middle, values.end());
+  return *middle;
+}
+
+// A particle's force and symmetric 3 x 3 Hessian, accumulated in scalars (the sweep's inner loop).
+struct Block {
+  double fx = 0, fy = 0, fz = 0;
+  double hxx = 0, hxy = 0, hxz = 0, hyy = 0, hyz = 0, hzz = 0;
+
+  void addIsotropic(double k) {
+    hxx += k;
+    hyy += k;
+    hzz += k;
+  }
+  // Adds a d d^T to the Hessian.
+  void addOuter(double a, double dx, double dy, double dz) {
+    hxx += a * dx * dx;
+    hxy += a * dx * dy;
+    hxz += a * dx * dz;
+    hyy += a * dy * dy;
+    hyz += a * dy * dz;
+    hzz += a * dz * dz;
+  }
+  double forceSquared() const { return fx * fx + fy * fy + fz * fz; }
+  // H^-1 f by cofactors (H is symmetric positive definite: the regularisation sees to it).
+  Eigen::Vector3d step() const {
+    const double c00 = hyy * hzz - hyz * hyz, c01 = hxz * hyz - hxy * hzz, c02 = hxy * hyz - hxz * hyy;
+    const double c11 = hxx * hzz - hxz * hxz, c12 = hxy * hxz - hxx * hyz, c22 = hxx * hyy - hxy * hxy;
+    const double inverse_det = 1.0 / (hxx * c00 + hxy * c01 + hxz * c02);
+    return inverse_det * Eigen::Vector3d(c00 * fx + c01 * fy + c02 * fz, c01 * fx + c11 * fy + c12 * fz,
+                                         c02 * fx + c12 * fy + c22 * fz);
+  }
+};
+
+// Force and projected Hessian of one spring on particle `x` (the other end at `other`). The Hessian
+// k [u u^T + max(0, 1 - l0 / l) (I - u u^T)] drops the negative transverse part of a compressed spring, so every
+// block is positive semi-definite and the Newton step is a descent step. With u = d / l it is
+// k t I + k (1 - t) / l^2 d d^T, t = max(0, 1 - l0 / l).
+inline void addSpring(const double* x, const double* other, double stiffness, double rest_length, Block& block) {
+  const double dx = x[0] - other[0], dy = x[1] - other[1], dz = x[2] - other[2];
+  const double length_squared = dx * dx + dy * dy + dz * dz;
+  if (!(length_squared > 0.0)) {
+    // Coincident ends: no direction to push along; the isotropic stiffness keeps the block invertible.
+    block.addIsotropic(stiffness);
+    return;
+  }
+  const double inverse_length = 1.0 / std::sqrt(length_squared);
+  const double rest_over_length = rest_length * inverse_length;
+  const double pull = stiffness * (1.0 - rest_over_length);  // force per unit of d, towards `other`
+  block.fx -= pull * dx;
+  block.fy -= pull * dy;
+  block.fz -= pull * dz;
+  const double transverse = std::max(0.0, 1.0 - rest_over_length);
+  block.addIsotropic(stiffness * transverse);
+  block.addOuter(stiffness * (1.0 - transverse) * inverse_length * inverse_length, dx, dy, dz);
+}
+
+// One-sided contact spring of stiffness kc keeping `x` at least `distance` from `centre`.
+// `curvature_scale` multiplies the Hessian only: 2 for a partner that moves in the same parallel step (see sweep()).
+inline void addContact(const double* x, const Eigen::Vector3d& centre, double distance, double stiffness,
+                       double curvature_scale, Block& block) {
+  double dx = x[0] - centre.x(), dy = x[1] - centre.y(), dz = x[2] - centre.z();
+  const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
+  if (length >= distance) return;
+  if (length > 0.0) {
+    dx /= length;
+    dy /= length;
+    dz /= length;
+  } else {
+    dx = 1.0;
+    dy = dz = 0.0;
+  }
+  const double push = stiffness * (distance - length);
+  block.fx += push * dx;
+  block.fy += push * dy;
+  block.fz += push * dz;
+  block.addOuter(curvature_scale * stiffness, dx, dy, dz);
+}
+
+inline double springEnergy(const Eigen::Vector3d& x, const Eigen::Vector3d& other, double stiffness, double rest_length) {
+  const double stretch = (x - other).norm() - rest_length;
+  return 0.5 * stiffness * stretch * stretch;
+}
+
+inline double contactEnergy(const Eigen::Vector3d& x, const Eigen::Vector3d& centre, double distance, double stiffness) {
+  const double depth = distance - (x - centre).norm();
+  return depth > 0 ? 0.5 * stiffness * depth * depth : 0.0;
+}
+
+}  // namespace
+
+std::string validate(const BlockDescentSettings& settings) {
+  if (!(settings.contact_stiffness_scale > 0) || !std::isfinite(settings.contact_stiffness_scale))
+    return "contact_stiffness_scale must be a positive number";
+  if (!(settings.chebyshev_rho >= 0 && settings.chebyshev_rho < 1)) return "chebyshev_rho must lie in [0, 1)";
+  if (settings.chebyshev_delay < 0) return "chebyshev_delay must be >= 0";
+  if (!(settings.contact_margin_scale >= 0) || !std::isfinite(settings.contact_margin_scale))
+    return "contact_margin_scale must be a non-negative number";
+  if (settings.contact_newton_steps < 1) return "contact_newton_steps must be >= 1";
+  if (settings.threads < 0) return "threads must be >= 0 (0 = every core)";
+  if (settings.max_iterations < 0) return "max_iterations must be >= 0";
+  if (!(settings.residual_tolerance >= 0) || !(settings.displacement_tolerance_m >= 0) ||
+      !(settings.time_budget_ms >= 0))
+    return "tolerances and the time budget must be finite and non-negative";
+  return {};
+}
+
+double relativeSpringResidual(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
+  const Eigen::Index n = system.particleCount();
+  Eigen::Matrix3Xd force = Eigen::Matrix3Xd::Zero(3, n);
+  std::vector<double> material;
+  material.reserve(system.springs.size());
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const auto e = static_cast<Eigen::Index>(s);
+    const Eigen::Vector3d d = position.col(system.springs.first[s]) - position.col(system.springs.second[s]);
+    const double length = d.norm();
+    material.push_back(system.springs.stiffness[e] * system.springs.rest_length[e]);
+    if (length == 0.0) continue;
+    const Eigen::Vector3d f = system.springs.stiffness[e] * (length - system.springs.rest_length[e]) / length * d;
+    force.col(system.springs.first[s]) -= f;
+    force.col(system.springs.second[s]) += f;
+  }
+  double sum = 0;
+  Eigen::Index free_count = 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (system.is_fixed[static_cast<std::size_t>(i)]) continue;
+    sum += force.col(i).squaredNorm();
+    ++free_count;
+  }
+  const double constant = median(std::move(material));
+  if (free_count == 0 || constant <= 0) return 0.0;
+  return std::sqrt(sum / static_cast<double>(free_count)) / constant;
+}
+
+BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings)
+    : system_(system), settings_(settings) {
+  if (const std::string problem = validate(settings_); !problem.empty())
+    throw std::invalid_argument("block descent settings: " + problem);
+#ifdef _OPENMP
+  thread_count_ = settings_.threads > 0 ? settings_.threads : omp_get_num_procs();
+#else
+  thread_count_ = 1;
+#endif
+  const Eigen::Index n = system_.particleCount();
+  const SpringSet& springs = system_.springs;
+
+  // Each particle's springs, packed contiguously: a sweep reads them in visiting order.
+  neighbour_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
+  for (std::size_t s = 0; s < springs.size(); ++s) {
+    ++neighbour_begin_[static_cast<std::size_t>(springs.first[s]) + 1];
+    ++neighbour_begin_[static_cast<std::size_t>(springs.second[s]) + 1];
+  }
+  for (std::size_t i = 0; i < static_cast<std::size_t>(n); ++i) neighbour_begin_[i + 1] += neighbour_begin_[i];
+  neighbours_.resize(static_cast<std::size_t>(neighbour_begin_.back()));
+  std::vector<std::int32_t> fill(neighbour_begin_.begin(), neighbour_begin_.end() - 1);
+  std::vector<double> material;
+  material.reserve(springs.size());
+  double rest_sum = 0;
+  for (std::size_t s = 0; s < springs.size(); ++s) {
+    const auto e = static_cast<Eigen::Index>(s);
+    const double k = springs.stiffness[e], l0 = springs.rest_length[e];
+    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])]++)] = {springs.second[s], k, l0};
+    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])]++)] = {springs.first[s], k, l0};
+    material.push_back(k * l0);
+    rest_sum += l0;
+  }
+  material_constant_n_ = springs.size() > 0 ? median(std::move(material)) : 1.0;
+  mean_rest_length_ = springs.size() > 0 ? rest_sum / static_cast<double>(springs.size()) : 1.0;
+
+  std::vector<double> radii;
+  for (Eigen::Index i = 0; i < system_.radius.size(); ++i)
+    if (system_.radius[i] > 0) radii.push_back(system_.radius[i]);
+  const double typical_radius = radii.empty() ? mean_rest_length_ : median(std::move(radii));
+  contact_stiffness_ = settings_.contact_stiffness_scale * material_constant_n_ / typical_radius;
+  contact_margin_m_ = settings_.contact_margin_scale * typical_radius;
+
+  // A tiny isotropic term (1e-9 of the particle's summed spring stiffness) keeps a block invertible when all of a
+  // particle's springs are compressed along one line; it changes no equilibrium, only the length of a step.
+  regularisation_.setZero(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    double sum = 0;
+    for (std::int32_t k = neighbour_begin_[static_cast<std::size_t>(i)]; k < neighbour_begin_[static_cast<std::size_t>(i) + 1]; ++k)
+      sum += neighbours_[static_cast<std::size_t>(k)].stiffness;
+    regularisation_[i] = 1e-9 * sum + 1e-12;
+  }
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
+  buildColouring();
+  // Springs repacked in visiting order: a sweep then reads them front to back, instead of jumping through the
+  // particle-ordered lists colour by colour (the sweep's cost is mostly reading them).
+  std::vector<NeighbourSpring> visit_order;
+  visit_order.reserve(neighbours_.size());
+  slot_spring_begin_.assign(coloured_particles_.size() + 1, 0);
+  for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
+    const std::size_t p = static_cast<std::size_t>(coloured_particles_[slot]);
+    visit_order.insert(visit_order.end(), neighbours_.begin() + neighbour_begin_[p],
+                       neighbours_.begin() + neighbour_begin_[p + 1]);
+    slot_spring_begin_[slot + 1] = static_cast<std::int32_t>(visit_order.size());
+  }
+  neighbours_ = std::move(visit_order);
+  neighbour_begin_.clear();
+  residual_squared_.setZero(n);
+  step_length_.setZero(n);
+  contact_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
+}
+
+void BlockDescentSolver::buildColouring() {
+  // Greedy colouring of the free particles in index order: the smallest colour no spring neighbour has. Particles of
+  // one colour share no spring, so their steps are independent.
+  const std::size_t n = static_cast<std::size_t>(system_.particleCount());
+  std::vector<std::int32_t> colour(n, -1);
+  std::vector<std::int32_t> taken_by;  // per colour: the last particle that saw it taken
+  int colours = 0;
+  for (const std::int32_t p : free_particles_) {
+    for (std::int32_t k = neighbour_begin_[static_cast<std::size_t>(p)]; k < neighbour_begin_[static_cast<std::size_t>(p) + 1]; ++k) {
+      const std::int32_t c = colour[static_cast<std::size_t>(neighbours_[static_cast<std::size_t>(k)].other)];
+      if (c >= 0) taken_by[static_cast<std::size_t>(c)] = p;
+    }
+    int chosen = 0;
+    while (chosen < colours && taken_by[static_cast<std::size_t>(chosen)] == p) ++chosen;
+    if (chosen == colours) {
+      taken_by.push_back(-1);
+      ++colours;
+    }
+    colour[static_cast<std::size_t>(p)] = chosen;
+  }
+  colour_of_ = colour;
+  colour_begin_.assign(static_cast<std::size_t>(colours) + 1, 0);
+  for (const std::int32_t p : free_particles_) ++colour_begin_[static_cast<std::size_t>(colour[static_cast<std::size_t>(p)]) + 1];
+  for (int c = 0; c < colours; ++c) colour_begin_[static_cast<std::size_t>(c) + 1] += colour_begin_[static_cast<std::size_t>(c)];
+  coloured_particles_.resize(free_particles_.size());
+  std::vector<std::int32_t> fill(colour_begin_.begin(), colour_begin_.end() - 1);
+  for (const std::int32_t p : free_particles_)
+    coloured_particles_[static_cast<std::size_t>(fill[static_cast<std::size_t>(colour[static_cast<std::size_t>(p)])]++)] = p;
+}
+
+void BlockDescentSolver::gatherContacts(const ParticleState& state) {
+  contacts_.clear();
+  if (contact_query_) contact_query_(state, contact_margin_m_, contacts_);
+  // Counting sort of the contacts by particle; a pair is entered at both ends with the partner's index (the sweep
+  // copies the partner's position before each colour).
+  std::fill(contact_begin_.begin(), contact_begin_.end(), 0);
+  for (const auto& o : contacts_.obstacles) ++contact_begin_[static_cast<std::size_t>(o.particle) + 1];
+  for (const auto& p : contacts_.pairs) {
+    ++contact_begin_[static_cast<std::size_t>(p.first) + 1];
+    ++contact_begin_[static_cast<std::size_t>(p.second) + 1];
+  }
+  for (std::size_t i = 0; i + 1 < contact_begin_.size(); ++i) contact_begin_[i + 1] += contact_begin_[i];
+  contact_entries_.resize(static_cast<std::size_t>(contact_begin_.back()));
+  std::vector<std::int32_t> fill(contact_begin_.begin(), contact_begin_.end() - 1);
+  for (const auto& o : contacts_.obstacles)
+    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(o.particle)]++)] = {o.centre, o.distance, -1,
+                                                                                              false};
+  for (const auto& p : contacts_.pairs) {
+    const std::int32_t first_colour = colour_of_[static_cast<std::size_t>(p.first)];
+    const bool same_colour = first_colour >= 0 && first_colour == colour_of_[static_cast<std::size_t>(p.second)];
+    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = {
+        Eigen::Vector3d::Zero(), p.distance, p.second, same_colour};
+    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.second)]++)] = {
+        Eigen::Vector3d::Zero(), p.distance, p.first, same_colour};
+  }
+}
+
+void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum) {
+  const int colours = colourCount();
+  const double kc = contact_stiffness_;
+  // Partners of a muscle-muscle contact may share a colour (no spring joins them): they are read from a copy taken
+  // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
+  // as if the other stood still, and together would overshoot the overlap twice (and chatter); doubling the contact's
+  // curvature for such pairs makes each take half, which together is the whole overlap.
+  for (int c = 0; c < colours; ++c) {
+    const std::int32_t begin = colour_begin_[static_cast<std::size_t>(c)], end = colour_begin_[static_cast<std::size_t>(c) + 1];
+    for (std::int32_t k = begin; k < end; ++k) {
+      const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+      for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+        ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+        if (entry.partner >= 0) entry.centre = position.col(entry.partner);
+      }
+    }
+#pragma omp parallel for num_threads(thread_count_) schedule(static)
+    for (std::int32_t k = begin; k < end; ++k) {
+      const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+      const std::int32_t contact_begin = contact_begin_[static_cast<std::size_t>(p)];
+      const std::int32_t contact_end = contact_begin_[static_cast<std::size_t>(p) + 1];
+      const std::int32_t spring_begin = slot_spring_begin_[static_cast<std::size_t>(k)];
+      const std::int32_t spring_end = slot_spring_begin_[static_cast<std::size_t>(k) + 1];
+      const bool has_contacts = contact_end > contact_begin;
+      // The particle's own energy with every other particle held: what its step must decrease.
+      const auto local_energy = [&](const Eigen::Vector3d& at) {
+        double energy = 0;
+        for (std::int32_t s = spring_begin; s < spring_end; ++s) {
+          const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+          energy += springEnergy(at, position.col(spring.other), spring.stiffness, spring.rest_length);
+        }
+        for (std::int32_t e = contact_begin; e < contact_end; ++e) {
+          const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+          energy += contactEnergy(at, entry.centre, entry.distance, kc);
+        }
+        return energy;
+      };
+      const Eigen::Vector3d start = position.col(p);
+      Eigen::Vector3d x = start;
+      const int newton_steps = has_contacts ? settings_.contact_newton_steps : 1;
+      for (int newton = 0; newton < newton_steps; ++newton) {
+        Block block;
+        const double* xp = x.data();
+        const double* positions = position.data();
+        for (std::int32_t s = spring_begin; s < spring_end; ++s) {
+          const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+          addSpring(xp, positions + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
+                    spring.rest_length, block);
+        }
+        for (std::int32_t e = contact_begin; e < contact_end; ++e) {
+          const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+          addContact(xp, entry.centre, entry.distance, kc, entry.same_colour ? 2.0 : 1.0, block);
+        }
+        if (newton == 0) residual_squared_[p] = block.forceSquared();
+        block.addIsotropic(regularisation_[p]);
+        Eigen::Vector3d step = block.step();
+        if (has_contacts) {
+          // A contact switching on or off within the step makes the energy piecewise: Newton can overshoot and cycle
+          // between the sides of a pinch, so the step is halved until the energy decreases.
+          const double energy = local_energy(x);
+          int halvings = 0;
+          while (local_energy(x + step) > energy && halvings < 12) {
+            step *= 0.5;
+            ++halvings;
+          }
+          if (halvings == 12) break;
+        }
+        x += step;
+        if (step.squaredNorm() < 1e-24) break;
+      }      step_length_[p] = (x - start).norm();
+      position.col(p) = x;
+    }
+  }
+  // Sums in particle order, so they do not depend on the thread count either.
+  residual_squared_sum = 0;
+  displacement_sum = 0;
+  for (const std::int32_t p : free_particles_) {
+    residual_squared_sum += residual_squared_[p];
+    displacement_sum += step_length_[p];
+  }
+}
+
+void BlockDescentSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
+                                     double time_budget_ms, const SolveLimits& limits) {
+  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+  settings_.stopping_rule = rule;
+  settings_.max_iterations = max_iterations;
+  settings_.displacement_tolerance_m = displacement_tolerance_m;
+  settings_.time_budget_ms = time_budget_ms;
+  settings_.limits = limits;
+}
+
+void BlockDescentSolver::setResidualTolerance(double relative_residual) {
+  if (!(relative_residual >= 0)) throw std::invalid_argument("residual tolerance must be >= 0");
+  settings_.residual_tolerance = relative_residual;
+}
+
+SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
+  const auto solve_start = Clock::now();
+  SolveStats stats;
+  const Eigen::Index n = system_.particleCount();
+  if (state.position.cols() != n)
+    throw std::invalid_argument("BlockDescentSolver: state has " + std::to_string(state.position.cols()) +
+                                " particles, the system " + std::to_string(n));
+  entry_position_ = state.position;
+  const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
+  const bool chebyshev = settings_.chebyshev_rho > 0;
+  const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;
+  double omega = 1.0;
+  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  last_residual_ = 0;
+
+  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+    auto phase_start = Clock::now();
+    gatherContacts(state);
+    stats.contacts = static_cast<int>(contacts_.size());
+    stats.collision_ms += millisecondsSince(phase_start);
+
+    phase_start = Clock::now();
+    if (chebyshev && iteration == 0) {
+      chebyshev_previous_ = state.position;
+      chebyshev_older_ = state.position;
+    }
+    double residual_squared_sum = 0, displacement_sum = 0;
+    sweep(state.position, residual_squared_sum, displacement_sum);
+    if (chebyshev) {
+      // Wang 2015: x_{k+1} = omega (x_sweep - x_{k-1}) + x_{k-1}, omega growing towards 2 / (1 + sqrt(1 - rho^2)).
+      if (iteration < settings_.chebyshev_delay) omega = 1.0;
+      else if (iteration == settings_.chebyshev_delay) omega = 2.0 / (2.0 - rho_squared);
+      else omega = 4.0 / (4.0 - rho_squared * omega);
+      if (omega != 1.0)
+        for (const std::int32_t p : free_particles_)
+          state.position.col(p) = omega * (state.position.col(p) - chebyshev_older_.col(p)) + chebyshev_older_.col(p);
+      chebyshev_older_.swap(chebyshev_previous_);
+      chebyshev_previous_ = state.position;
+    }
+    state.previous_position = state.position;  // quasi-static: no velocity
+    stats.mss_ms += millisecondsSince(phase_start);
+    runAfterUpdateHook(after_update, state, stats);
+
+    stats.iterations = iteration + 1;
+    last_residual_ = std::sqrt(residual_squared_sum / free_count) / material_constant_n_;
+    stats.mean_displacement_m = displacement_sum / free_count;
+    stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
+    if (!std::isfinite(last_residual_) || !std::isfinite(stats.mean_displacement_m)) {
+      stats.diverged = true;
+      break;
+    }
+    const double elapsed_ms = millisecondsSince(solve_start);
+    if (settings_.stopping_rule == StoppingRule::force_residual) {
+      if (last_residual_ < settings_.residual_tolerance) {
+        stats.stopping_rule_met = stats.converged = true;
+        break;
+      }
+    } else if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
+      stats.stopping_rule_met = true;
+      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
+      break;
+    }
+    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+  }
+  if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
+  if (stats.diverged) {
+    state.position = entry_position_;
+    state.previous_position = entry_position_;
+  }
+  stats.residual = last_residual_;
+  stats.total_ms = millisecondsSince(solve_start);
+  recordSpringMetrics(system_.springs, state.position, stats);
+  return stats;
+}
+
+}  // namespace muscle_deformation

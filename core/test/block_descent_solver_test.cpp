@@ -1,0 +1,224 @@
+// Block descent solver: analytic equilibria, the force-residual stopping rule, contacts in the solve, thread-count
+// independence and robustness on the synthetic thigh.
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include "test_helpers.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace muscle_deformation;
+using muscle_deformation::testing::stateAt;
+
+namespace {
+
+// A straight chain of `links` springs of rest length 1 m along x, both ends fixed (material constant 1 N).
+MassSpringSystem fixedChain(int links) {
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, links + 1);
+  ParticlePairs springs;
+  for (int i = 0; i <= links; ++i) positions(0, i) = i;
+  for (int i = 0; i < links; ++i) springs.emplace_back(i, i + 1);
+  MassSpringSystem system = systemFromParticles(positions, springs, 1.0, 1.0);
+  system.is_fixed[0] = 1;
+  system.is_fixed[static_cast<std::size_t>(links)] = 1;
+  return system;
+}
+
+// A 4 x 4 x 4 lattice of unit spacing with edge and face-diagonal springs; the x = 0 face fixed.
+MassSpringSystem latticeBlock() {
+  const int n = 4;
+  Eigen::Matrix3Xd positions(3, n * n * n);
+  const auto index = [n](int x, int y, int z) { return x + n * (y + n * z); };
+  for (int z = 0; z < n; ++z)
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x) positions.col(index(x, y, z)) = Eigen::Vector3d(x, y, z);
+  ParticlePairs springs;
+  for (int a = 0; a < n * n * n; ++a)
+    for (int b = a + 1; b < n * n * n; ++b) {
+      const double d = (positions.col(a) - positions.col(b)).norm();
+      if (d < 1.5) springs.emplace_back(a, b);
+    }
+  MassSpringSystem system = systemFromParticles(positions, springs, 1.0, 10.0);
+  for (int z = 0; z < n; ++z)
+    for (int y = 0; y < n; ++y) system.is_fixed[static_cast<std::size_t>(index(0, y, z))] = 1;
+  return system;
+}
+
+BlockDescentSettings converging(int max_iterations, double tolerance) {
+  BlockDescentSettings settings;
+  settings.stopping_rule = StoppingRule::force_residual;
+  settings.max_iterations = max_iterations;
+  settings.residual_tolerance = tolerance;
+  return settings;
+}
+
+}  // namespace
+
+TEST(BlockDescent, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
+  const int links = 10;
+  const MassSpringSystem system = fixedChain(links);
+  ParticleState state = stateAt(system.rest_position);
+  state.position(0, links) = 15.0;  // the end pulled: every link at 1.5 m at equilibrium
+  for (int i = 1; i < links; ++i) state.position(1, i) = 0.3 * std::sin(i);  // and a bent start
+  BlockDescentSolver solver(system, converging(5000, 1e-10));
+  const SolveStats stats = solver.solve(state);
+  EXPECT_TRUE(stats.converged);
+  EXPECT_LT(stats.residual, 1e-10);
+  for (int i = 0; i <= links; ++i) {
+    EXPECT_NEAR(state.position(0, i), 1.5 * i, 1e-8);
+    EXPECT_NEAR(state.position(1, i), 0.0, 1e-8);
+  }
+}
+
+TEST(BlockDescent, StretchedBlockMatchesAnIndependentSolverAndIsAtRestWhenUnloaded) {
+  const MassSpringSystem system = latticeBlock();
+  ParticleState state = stateAt(system.rest_position);
+  BlockDescentSolver solver(system, converging(100, 1e-12));
+  SolveStats stats = solver.solve(state);  // at rest: nothing to do
+  EXPECT_TRUE(stats.converged);
+  EXPECT_LT((state.position - system.rest_position).cwiseAbs().maxCoeff(), 1e-12);
+
+  // Pull the x = 3 face by 0.5 m with it fixed: the equilibrium is the minimum of the spring energy, which damped
+  // Verlet run long reaches too (different method, same answer).
+  MassSpringSystem pulled = system;
+  for (Eigen::Index i = 0; i < pulled.particleCount(); ++i)
+    if (pulled.rest_position(0, i) == 3.0) pulled.is_fixed[static_cast<std::size_t>(i)] = 1;
+  ParticleState start = stateAt(pulled.rest_position);
+  for (Eigen::Index i = 0; i < pulled.particleCount(); ++i)
+    if (pulled.rest_position(0, i) == 3.0) start.position(0, i) += 0.5;
+  start.previous_position = start.position;
+  ParticleState descent = start;
+  BlockDescentSolver block(pulled, converging(20000, 1e-11));
+  stats = block.solve(descent);
+  EXPECT_TRUE(stats.converged);
+  SolverSettings verlet_settings;
+  verlet_settings.max_iterations = 200000;
+  verlet_settings.stopping_rule = StoppingRule::displacement;
+  verlet_settings.displacement_tolerance_m = 1e-13;
+  ParticleState verlet = start;
+  VerletSolver(pulled, verlet_settings).solve(verlet);
+  EXPECT_LT((descent.position - verlet.position).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_LT(relativeSpringResidual(pulled, descent.position), 1e-10);
+  // The block got longer and, by symmetry, its centre line stayed on the mid-plane.
+  EXPECT_GT(descent.position.row(0).maxCoeff(), 3.4);
+}
+
+TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
+  const MassSpringSystem system = fixedChain(10);
+  ParticleState state = stateAt(system.rest_position);
+  state.position(0, 10) = 15.0;
+  BlockDescentSolver solver(system, converging(100000, 1e-4));
+  const SolveStats met = solver.solve(state);
+  EXPECT_TRUE(met.converged);
+  EXPECT_TRUE(met.stopping_rule_met);
+  EXPECT_LT(met.residual, 1e-4);
+  EXPECT_GT(met.iterations, 1);
+
+  ParticleState again = stateAt(system.rest_position);
+  again.position(0, 10) = 15.0;
+  BlockDescentSolver capped(system, converging(2, 1e-12));
+  const SolveStats cut = capped.solve(again);
+  EXPECT_FALSE(cut.converged);
+  EXPECT_FALSE(cut.stopping_rule_met);
+  EXPECT_EQ(cut.iterations, 2);
+  EXPECT_GT(cut.residual, 1e-12);
+}
+
+TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
+  const MassSpringSystem system = fixedChain(3);
+  SolverSettings verlet;
+  verlet.stopping_rule = StoppingRule::force_residual;
+  EXPECT_THROW(VerletSolver(system, verlet), std::invalid_argument);
+  LocalGlobalSettings local_global;
+  local_global.stopping_rule = StoppingRule::force_residual;
+  EXPECT_FALSE(validate(local_global).empty());
+  BlockDescentSettings bad;
+  bad.threads = -1;
+  EXPECT_THROW(BlockDescentSolver(system, bad), std::invalid_argument);
+}
+
+TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
+  // A particle hung between two fixed ends 2 m apart, pulled by its springs (rest length 0.2 m) straight through a
+  // fixed sphere of radius 0.5 m around the midpoint's foot: at equilibrium it rests on the sphere, pressed against it.
+  Eigen::Matrix3Xd positions(3, 3);
+  positions << -1, 0, 1,  //
+      0, 0.8, 0,          //
+      0, 0, 0;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.springs.rest_length.setConstant(0.2);
+  system.springs.stiffness.setConstant(5.0);  // material constant 1 N
+  system.is_fixed[0] = system.is_fixed[2] = 1;
+  system.radius.setConstant(0.1);
+  const Eigen::Vector3d centre(0, -0.2, 0);
+  const double distance = 0.5 + 0.1;  // sphere radius plus the particle's
+  BlockDescentSettings settings = converging(10000, 1e-9);
+  BlockDescentSolver solver(system, settings);
+  solver.setContactQuery([&](const ParticleState&, double, ContactSet& contacts) {
+    contacts.clear();
+    contacts.obstacles.push_back({1, centre, distance});
+  });
+  ParticleState state = stateAt(system.rest_position);
+  const SolveStats stats = solver.solve(state);
+  EXPECT_TRUE(stats.converged);
+  const double gap = (state.position.col(1) - centre).norm() - distance;
+  // Pressed: the springs pull it down (about 2 x 5 N/m x 0.8 m), the contact holds it within force / stiffness.
+  EXPECT_LT(gap, 0.0);
+  EXPECT_GT(gap, -10.0 / solver.contactStiffness());
+  EXPECT_NEAR(state.position(0, 1), 0.0, 1e-9);  // on the symmetry line
+  // Without the sphere it would sink to the line between the ends.
+  ParticleState free_state = stateAt(system.rest_position);
+  BlockDescentSolver(system, settings).solve(free_state);
+  EXPECT_NEAR(free_state.position(1, 1), 0.0, 1e-6);
+}
+
+TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
+  const SyntheticScene scene = makeSyntheticThigh(4, 4);
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.solver_kind = SolverKind::block_descent;
+  settings.block_descent.stopping_rule = StoppingRule::iterations;
+  settings.block_descent.max_iterations = 12;
+  Eigen::Matrix3Xd positions[2];
+  int contacts[2] = {0, 0};
+  for (const int threads : {1, 2}) {
+    settings.block_descent.threads = threads;
+    MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+    simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
+    const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
+    positions[threads - 1] = simulation.state().position;
+    contacts[threads - 1] = stats.solve.contacts;
+  }
+  EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
+  EXPECT_EQ(contacts[0], contacts[1]);
+  EXPECT_TRUE((positions[0].array() == positions[1].array()).all());  // bit for bit
+}
+
+TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {
+  const SyntheticScene scene = makeSyntheticThigh(4, 4);
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.solver_kind = SolverKind::block_descent;
+  settings.block_descent.stopping_rule = StoppingRule::iterations;
+  settings.block_descent.max_iterations = 10;
+  MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+  simulation.solve(syntheticThighPose(0, 0), StartMode::cold);
+  const FrameStats stats = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);  // ~90 and ~115 degrees
+  EXPECT_TRUE(stats.finite);
+  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_TRUE(simulation.state().position.allFinite());
+  double median_radius = 0;
+  {
+    std::vector<double> radii;
+    for (Eigen::Index i = 0; i < simulation.system().particleCount(); ++i)
+      if (simulation.system().radius[i] > 0) radii.push_back(simulation.system().radius[i]);
+    std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
+    median_radius = radii[radii.size() / 2];
+  }
+  EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, median_radius);
+}
