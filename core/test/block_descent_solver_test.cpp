@@ -222,3 +222,31 @@ TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {
   }
   EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, median_radius);
 }
+
+TEST(BlockDescent, TimeBudgetNeverStartsASweepPastItButAlwaysTakesOne) {
+  const MassSpringSystem system = fixedChain(10);
+  ParticleState state = stateAt(system.rest_position);
+  state.position(0, 10) = 15.0;
+  BlockDescentSettings settings;
+  settings.stopping_rule = StoppingRule::time_budget;
+  settings.time_budget_ms = 0.0;  // no time at all: still one sweep, and no second
+  settings.max_iterations = 1000;
+  BlockDescentSolver solver(system, settings);
+  const SolveStats stats = solver.solve(state);
+  EXPECT_EQ(stats.iterations, 1);
+  EXPECT_TRUE(stats.stopping_rule_met);
+  EXPECT_FALSE(stats.converged);  // a deadline is not convergence
+}
+
+TEST(BlockDescent, ResidualOfMeasuresAnyStateAndIsSmallAtTheSolversEquilibrium) {
+  const MassSpringSystem system = fixedChain(10);
+  ParticleState state = stateAt(system.rest_position);
+  state.position(0, 10) = 15.0;
+  BlockDescentSolver solver(system, converging(100000, 1e-9));
+  const double before = solver.residualOf(state);
+  // Only particle 9 is loaded: its link to the end moved from x = 10 to 15 is 6 m long at rest length 1 m, so it pulls
+  // with 5 N (stiffness 1 N/m). The RMS over the 9 free particles is 5 / 3 N, relative to the material constant 1 N.
+  EXPECT_NEAR(before, 5.0 / 3.0, 1e-12);
+  solver.solve(state);
+  EXPECT_LT(solver.residualOf(state), 1e-8);
+}

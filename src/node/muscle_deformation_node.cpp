@@ -523,8 +523,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // max_solve_time_s bounds every call.
   const SolverSettings& node_solver = settings_.pipeline.simulation.solver;
   StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
-  // Only block descent measures a force residual; another service solver runs its iteration count instead.
-  if (rule == StoppingRule::force_residual && settings_.service.solver_kind != SolverKind::block_descent)
+  // A frame's time budget is the stream's (a request bounds its own time with time_budget_ms), and only block descent
+  // measures a force residual: the service runs its iteration count instead.
+  if (rule == StoppingRule::time_budget ||
+      (rule == StoppingRule::force_residual && settings_.service.solver_kind != SolverKind::block_descent))
     rule = StoppingRule::iterations;
   const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
   const double tolerance_m =

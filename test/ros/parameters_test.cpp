@@ -179,6 +179,7 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
                      {"service_solver", XmlRpc::XmlRpcValue(std::string("verlet"))},
                      {"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}}),
             "");
-  const std::string service_problem = errorOf({{"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}});
+  const std::string service_problem = errorOf({{"service_solver", XmlRpc::XmlRpcValue(std::string("local_global"))},
+                                               {"chebyshev_rho", XmlRpc::XmlRpcValue(0.5)}});
   EXPECT_EQ(service_problem.rfind(prefix + "service_lbfgs_history ", 0), 0u) << service_problem;
 }

@@ -226,6 +226,8 @@ std::string checkSetting(const SettingSpec& spec, const SettingValue& value) {
 
 CoreSettings nodeDefaultSettings() {
   CoreSettings settings;
+  settings.pipeline.simulation.solver_kind = SolverKind::block_descent;
+  settings.pipeline.simulation.solver.stopping_rule = StoppingRule::time_budget;
   settings.pipeline.simulation.solver.max_iterations = 30;
   settings.pipeline.simulation.solver.time_budget_ms = 12.0;
   return settings;

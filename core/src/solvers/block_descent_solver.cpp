@@ -182,8 +182,10 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   for (std::size_t s = 0; s < springs.size(); ++s) {
     const auto e = static_cast<Eigen::Index>(s);
     const double k = springs.stiffness[e], l0 = springs.rest_length[e];
-    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])]++)] = {springs.second[s], k, l0};
-    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])]++)] = {springs.first[s], k, l0};
+    const NeighbourSpring packed_to_second{springs.second[s], k, l0};
+    const NeighbourSpring packed_to_first{springs.first[s], k, l0};
+    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])]++)] = packed_to_second;
+    neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])]++)] = packed_to_first;
     material.push_back(k * l0);
     rest_sum += l0;
   }
@@ -199,12 +201,17 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
 
   // A tiny isotropic term (1e-9 of the particle's summed spring stiffness) keeps a block invertible when all of a
   // particle's springs are compressed along one line; it changes no equilibrium, only the length of a step.
+  // Each particle's contact stiffness is also at least contact_stiffness_scale times its summed spring stiffness:
+  // random sampling leaves springs a few micrometres long (k = material / rest length up to 10^4 x the median), and a
+  // free particle tied by one to an attachment inside a bone sphere would otherwise stay inside with it.
   regularisation_.setZero(n);
+  particle_contact_stiffness_.setZero(n);
   for (Eigen::Index i = 0; i < n; ++i) {
     double sum = 0;
     for (std::int32_t k = neighbour_begin_[static_cast<std::size_t>(i)]; k < neighbour_begin_[static_cast<std::size_t>(i) + 1]; ++k)
       sum += neighbours_[static_cast<std::size_t>(k)].stiffness;
     regularisation_[i] = 1e-9 * sum + 1e-12;
+    particle_contact_stiffness_[i] = std::max(contact_stiffness_, settings_.contact_stiffness_scale * sum);
   }
   for (Eigen::Index i = 0; i < n; ++i)
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
@@ -225,6 +232,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   residual_squared_.setZero(n);
   step_length_.setZero(n);
   contact_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
+  bounded_step_.assign(static_cast<std::size_t>(n), 0);
 }
 
 void BlockDescentSolver::buildColouring() {
@@ -259,6 +267,8 @@ void BlockDescentSolver::buildColouring() {
 
 void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   contacts_.clear();
+  if (contact_query_ && contact_margin_m_ > 0)
+    for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
   if (contact_query_) contact_query_(state, contact_margin_m_, contacts_);
   // Counting sort of the contacts by particle; a pair is entered at both ends with the partner's index (the sweep
   // copies the partner's position before each colour).
@@ -286,7 +296,6 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
 
 void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum) {
   const int colours = colourCount();
-  const double kc = contact_stiffness_;
   // Partners of a muscle-muscle contact may share a colour (no spring joins them): they are read from a copy taken
   // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
   // as if the other stood still, and together would overshoot the overlap twice (and chatter); doubling the contact's
@@ -303,6 +312,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
 #pragma omp parallel for num_threads(thread_count_) schedule(static)
     for (std::int32_t k = begin; k < end; ++k) {
       const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+      const double kc = particle_contact_stiffness_[p];
       const std::int32_t contact_begin = contact_begin_[static_cast<std::size_t>(p)];
       const std::int32_t contact_end = contact_begin_[static_cast<std::size_t>(p) + 1];
       const std::int32_t spring_begin = slot_spring_begin_[static_cast<std::size_t>(k)];
@@ -317,7 +327,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          energy += contactEnergy(at, entry.centre, entry.distance, kc);
+          energy += contactEnergy(at, entry.centre, entry.distance, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
         }
         return energy;
       };
@@ -335,12 +345,23 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          addContact(xp, entry.centre, entry.distance, kc, entry.same_colour ? 2.0 : 1.0, block);
+          // A pair's energy is one: both ends use the stiffer end's stiffness.
+          const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
+          addContact(xp, entry.centre, entry.distance, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
         }
         if (newton == 0) residual_squared_[p] = block.forceSquared();
         block.addIsotropic(regularisation_[p]);
         Eigen::Vector3d step = block.step();
-        if (has_contacts) {
+        // Where no contact touches at either end of the step the energy is smooth along it and the Newton step stands
+        // (most particles near a contact: the margin lists pairs before they touch).
+        const auto touching = [&](const Eigen::Vector3d& at) {
+          for (std::int32_t e = contact_begin; e < contact_end; ++e) {
+            const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+            if ((at - entry.centre).squaredNorm() < entry.distance * entry.distance) return true;
+          }
+          return false;
+        };
+        if (has_contacts && (touching(x) || touching(x + step))) {
           // A contact switching on or off within the step makes the energy piecewise: Newton can overshoot and cycle
           // between the sides of a pinch, so the step is halved until the energy decreases.
           const double energy = local_energy(x);
@@ -350,10 +371,21 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
             ++halvings;
           }
           if (halvings == 12) break;
+        } else {
+          x += step;
+          break;
         }
         x += step;
         if (step.squaredNorm() < 1e-24) break;
-      }      step_length_[p] = (x - start).norm();
+      }
+      // Contacts are known only within the detection margin: a collidable particle that stepped further could cross a
+      // sphere nobody listed (after a pose jump a first step can be centimetres). Its step is cut to the margin, as
+      // Vertex Block Descent bounds its steps for the same reason; the next sweep finds what lies beyond.
+      if (bounded_step_[p]) {
+        const double length = (x - start).norm();
+        if (length > contact_margin_m_) x = start + (contact_margin_m_ / length) * (x - start);
+      }
+      step_length_[p] = (x - start).norm();
       position.col(p) = x;
     }
   }
@@ -364,6 +396,32 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
     residual_squared_sum += residual_squared_[p];
     displacement_sum += step_length_[p];
   }
+}
+
+double BlockDescentSolver::residualOf(const ParticleState& state) {
+  gatherContacts(state);
+  const Eigen::Matrix3Xd& position = state.position;
+  double sum = 0;
+  for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
+    const std::int32_t p = coloured_particles_[slot];
+    const double kc = particle_contact_stiffness_[p];
+    Block block;
+    const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
+    for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
+      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+      addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
+                spring.rest_length, block);
+    }
+    for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+      const Eigen::Vector3d centre = entry.partner >= 0 ? Eigen::Vector3d(position.col(entry.partner)) : entry.centre;
+      const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
+      addContact(xp, centre, entry.distance, pair_kc, 1.0, block);
+    }
+    sum += block.forceSquared();
+  }
+  const double free_count = std::max<double>(1.0, static_cast<double>(coloured_particles_.size()));
+  return std::sqrt(sum / free_count) / material_constant_n_;
 }
 
 void BlockDescentSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
@@ -396,8 +454,10 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
   StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
   last_residual_ = 0;
 
+  double previous_elapsed_ms = 0;
   for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
     auto phase_start = Clock::now();
+    if (iteration > 0) previous_elapsed_ms = millisecondsSince(solve_start);
     gatherContacts(state);
     stats.contacts = static_cast<int>(contacts_.size());
     stats.collision_ms += millisecondsSince(phase_start);
@@ -436,6 +496,13 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     if (settings_.stopping_rule == StoppingRule::force_residual) {
       if (last_residual_ < settings_.residual_tolerance) {
         stats.stopping_rule_met = stats.converged = true;
+        break;
+      }
+    } else if (settings_.stopping_rule == StoppingRule::time_budget) {
+      // A budget is a deadline: stop when another sweep as long as the last would end past it (at least one sweep).
+      const double sweep_ms = elapsed_ms - previous_elapsed_ms;
+      if (elapsed_ms + sweep_ms > settings_.time_budget_ms) {
+        stats.stopping_rule_met = true;
         break;
       }
     } else if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {

@@ -42,7 +42,7 @@ const SettingSpec* findSetting(const std::string& name);  // nullptr when no suc
 std::string checkSetting(const SettingSpec& spec, const SettingValue& value);
 
 // The settings the node starts from: the core's defaults, except where the node's own measurement chose otherwise
-// (the streamed frame's 30 iterations and 12 ms budget, docs/BENCHMARKS.md).
+// (docs/BENCHMARKS.md, real-time section): block descent sweeping within a 12 ms budget per frame (at most 30 sweeps).
 CoreSettings nodeDefaultSettings();
 
 // A YAML scalar typed as rosparam types the same file: true/false, an integer, a floating-point number, else the text.
