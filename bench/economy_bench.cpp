@@ -118,7 +118,10 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
   records.add("frame_cpu_ms", bench::median(column(frames, &FrameRecord::cpu_ms)));
   records.add("frame_max_ms", maxOf(column(frames, &FrameRecord::wall_ms)));
   records.add("frames", static_cast<double>(frames.size()));
-  records.add("iterations_per_frame", static_cast<double>(simulation.settings().solver.max_iterations));
+  // Iterations a frame actually ran (under a time budget they vary), and which solver ran them.
+  records.add("iterations_per_frame",
+              bench::median(statColumn(frames, [](const FrameStats& s) { return static_cast<double>(s.solve.iterations); })));
+  records.add("solver", toString(simulation.settings().solver_kind));
   records.add("mss_ms_per_frame", bench::median(statColumn(frames, [](const FrameStats& s) { return s.solve.mss_ms; })));
   records.add("collision_ms_per_frame",
               bench::median(statColumn(frames, [](const FrameStats& s) { return s.solve.collision_ms; })));

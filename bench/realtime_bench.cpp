@@ -166,17 +166,13 @@ int main(int argc, char** argv) {
   }
   std::vector<Config> cold_configs;
   {
-    // The service's defaults (service_solver, service_max_iterations) are marked as the node's cold default.
-    for (const int sweeps : {10, 30, 100}) {
-      Config config = blockDescent(sweeps, 0);
-      config.node_default = sweeps == 30;
-      cold_configs.push_back(config);
-    }
+    for (const int sweeps : {10, 30, 100}) cold_configs.push_back(blockDescent(sweeps, 0));
     Config service;
     service.label = "local_global lbfgs16 120 iterations";
     service.kind = SolverKind::local_global;
     service.max_iterations = 120;
     service.lbfgs_history = 16;
+    service.node_default = true;  // the service's defaults (service_solver, service_lbfgs_history, ..._max_iterations)
     cold_configs.push_back(service);
   }
 

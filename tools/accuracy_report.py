@@ -411,7 +411,8 @@ def economy_section(rows):
 
     lines = ["## Model only what a scene needs (report issue)", "",
              "What each economy buys on the bundled scene at 20 particles per fibre with the node's defaults (warm "
-             f"start, {int(rows[0].get('iterations_per_frame', 0))} iterations per frame), over the 73 frames of the gait. "
+             f"start, {rows[0].get('solver', 'verlet')} under the node's stopping rule; a small subset fits more "
+             "iterations into a time budget), over the 73 frames of the gait. "
              "Frame times are medians, wall "
              "(thread CPU in brackets). Raw numbers: `out/bench/economy.json`.", ""]
     subsets = of("muscle_subset")

@@ -13,6 +13,7 @@ import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import accuracy_report  # noqa: E402
+import realtime_report  # noqa: E402
 
 
 def machine_description():
@@ -221,6 +222,9 @@ def main():
              f"Machine: {machine_description()}.", ""]
     img_dir = target.parent / "img"
     img_dir.mkdir(parents=True, exist_ok=True)
+    realtime = load(out_dir, "realtime.json")
+    if realtime:
+        lines += realtime_report.realtime_section(realtime, img_dir)
     paper_table = load(out_dir, "paper_table.json")
     if paper_table:
         lines += accuracy_report.paper_table_section(paper_table)
@@ -251,7 +255,7 @@ def main():
         lines += skinning_section(skinning)
     extra = sorted(p.name for p in out_dir.glob("*.json")
                    if p.name not in {"mss.json", "iteration.json", "skinning.json", "local_global.json", "paper_table.json",
-                                     "speed_vs_error.json", "stability.json", "economy.json"})
+                                     "speed_vs_error.json", "stability.json", "economy.json", "realtime.json"})
     if extra:
         lines += ["## Other results", "", "Raw numbers in `out/bench/`: " + ", ".join(extra) + ".", ""]
     target.parent.mkdir(parents=True, exist_ok=True)

@@ -243,6 +243,8 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   const SolveStats& solve = frame.solve.solve;
   stats.iterations = solve.iterations;
   stats.converged = solve.converged;
+  stats.has_residual = solve.residual >= 0;
+  stats.force_residual = stats.has_residual ? solve.residual : 0.0;
   stats.time_limit_reached = solve.time_limit_reached;
   stats.warm_started = frame.solve.warm_started;
   stats.finite = frame.solve.finite;

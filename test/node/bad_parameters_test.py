@@ -36,7 +36,7 @@ class BadParameters(unittest.TestCase):
         code, output = self.run_node("_service_solver:=euler")
         self.assertNotEqual(code, 0)
         self.assertIn("service_solver", output)
-        self.assertIn("expected verlet or local_global", output)
+        self.assertIn("expected verlet, local_global or block_descent", output)
 
     def test_conflicting_solver_options_are_refused(self):
         code, output = self.run_node("_solver:=local_global", "_lbfgs_history:=4", "_chebyshev_rho:=0.5")

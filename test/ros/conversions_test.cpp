@@ -95,8 +95,13 @@ TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) 
   EXPECT_EQ(stats.strain_p99, 0.12);
   EXPECT_FALSE(stats.has_surface_metrics);
   EXPECT_EQ(stats.header.frame_id, "pelvis");
+  EXPECT_FALSE(stats.has_residual);  // this solver measured none (SolveStats::residual < 0): absent, not 0
   frame.solve.solve.converged = true;
-  EXPECT_TRUE(node::statsToMessage(frame, header).converged);
+  frame.solve.solve.residual = 2.5e-3;
+  const muscle_deformation::DeformationStats measured = node::statsToMessage(frame, header);
+  EXPECT_TRUE(measured.converged);
+  EXPECT_TRUE(measured.has_residual);
+  EXPECT_EQ(measured.force_residual, 2.5e-3);
 }
 
 TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {

@@ -79,6 +79,14 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   else
     rigidPretransform(system_, transforms, state_);
 
+  // A time budget is the real-time contract of a continuing stream. A cold start (the first frame, a discontinuity)
+  // continues nothing: from the rigid pre-transform one budget's sweeps leave particles millimetres inside bone, so it
+  // runs to the iteration cap instead, once.
+  const SolverSettings& stop = settings_.solver;
+  const bool cold_under_budget = !stats.warm_started && stop.stopping_rule == StoppingRule::time_budget;
+  if (cold_under_budget)
+    solver_->setStopping(StoppingRule::iterations, stop.max_iterations, stop.displacement_tolerance_m,
+                         stop.time_budget_ms, stop.limits);
   if (collision_ && solver_->solvesContacts()) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
@@ -93,6 +101,9 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   } else {
     stats.solve = solver_->solve(state_);
   }
+  if (cold_under_budget)
+    solver_->setStopping(stop.stopping_rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
+                         stop.limits);
   // The solvers put a diverged state back as it was on entry, which is finite whenever the previous result was. Should
   // anything still leave a non-finite position, fall back to the rigid pre-transform of the rest shape: finite by
   // construction, and a pose-consistent answer rather than none.

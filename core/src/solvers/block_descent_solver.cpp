@@ -294,7 +294,8 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   }
 }
 
-void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum) {
+void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum,
+                               bool touching_only) {
   const int colours = colourCount();
   // Partners of a muscle-muscle contact may share a colour (no spring joins them): they are read from a copy taken
   // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
@@ -315,6 +316,18 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const double kc = particle_contact_stiffness_[p];
       const std::int32_t contact_begin = contact_begin_[static_cast<std::size_t>(p)];
       const std::int32_t contact_end = contact_begin_[static_cast<std::size_t>(p) + 1];
+      if (touching_only) {
+        bool touching = false;
+        for (std::int32_t e = contact_begin; e < contact_end && !touching; ++e) {
+          const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+          touching = (position.col(p) - entry.centre).squaredNorm() < entry.distance * entry.distance;
+        }
+        if (!touching) {
+          residual_squared_[p] = 0;
+          step_length_[p] = 0;
+          continue;
+        }
+      }
       const std::int32_t spring_begin = slot_spring_begin_[static_cast<std::size_t>(k)];
       const std::int32_t spring_end = slot_spring_begin_[static_cast<std::size_t>(k) + 1];
       const bool has_contacts = contact_end > contact_begin;
@@ -380,10 +393,18 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       }
       // Contacts are known only within the detection margin: a collidable particle that stepped further could cross a
       // sphere nobody listed (after a pose jump a first step can be centimetres). Its step is cut to the margin, as
-      // Vertex Block Descent bounds its steps for the same reason; the next sweep finds what lies beyond.
+      // Vertex Block Descent bounds its steps for the same reason, plus the depth it starts at inside a listed sphere,
+      // so that a particle the warm start carried deep into a bone gets out in one sweep. The next sweep finds what
+      // lies beyond.
       if (bounded_step_[p]) {
+        double start_depth = 0;
+        for (std::int32_t e = contact_begin; e < contact_end; ++e) {
+          const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+          start_depth = std::max(start_depth, entry.distance - (start - entry.centre).norm());
+        }
+        const double bound = contact_margin_m_ + start_depth;
         const double length = (x - start).norm();
-        if (length > contact_margin_m_) x = start + (contact_margin_m_ / length) * (x - start);
+        if (length > bound) x = start + (bound / length) * (x - start);
       }
       step_length_[p] = (x - start).norm();
       position.col(p) = x;
@@ -511,6 +532,17 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
       break;
     }
     if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+  }
+  if (!stats.diverged && contact_query_ && stats.iterations > 0 && !stats.cancelled) {
+    // Closing contact pass: only the particles touching a listed contact are visited, so that what the last sweep's
+    // other moves pushed into a sphere is pushed out (a fraction of a sweep's cost; its residual is not the frame's,
+    // which stays the last full sweep's). The sweep's list still holds every sphere a particle can touch now: no step
+    // was longer than the detection margin beyond the depth it started at.
+    const auto pass_start = Clock::now();
+    double ignored_residual = 0, ignored_displacement = 0;
+    sweep(state.position, ignored_residual, ignored_displacement, true);
+    state.previous_position = state.position;
+    stats.collision_ms += millisecondsSince(pass_start);
   }
   if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
   if (stats.diverged) {

@@ -113,8 +113,10 @@ class BlockDescentSolver final : public SoftBodySolver {
 
   void buildColouring();
   void gatherContacts(const ParticleState& state);
-  // One sweep over every colour; returns the summed squared residual force and summed |step| of the free particles.
-  void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum);
+  // One sweep over every colour (or only the particles touching a contact); returns the summed squared residual force
+  // and summed |step| of the free particles.
+  void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum,
+             bool touching_only = false);
 
   const MassSpringSystem& system_;
   BlockDescentSettings settings_;
