@@ -77,6 +77,29 @@ struct Measured {
   int iterations = 0;
 };
 
+// The common yardstick (residualOf) for one simulation's states, with the simulation's own contacts.
+BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockDescentSettings& settings) {
+  BlockDescentSolver yardstick(simulation.system(), settings);
+  const CollisionWorld* world = simulation.collisionWorld();
+  // The query refreshes the world's broad-phase caches only; MuscleSimulation hands out the world read-only.
+  yardstick.setContactQuery([world](const ParticleState& state, double margin_m, ContactSet& contacts) {
+    const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
+  });
+  return yardstick;
+}
+
+// One solved frame or pose against its reference.
+Measured measured(MuscleSimulation& simulation, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
+                  BlockDescentSolver& yardstick) {
+  Measured m;
+  m.frame_ms = stats.solve.total_ms;
+  m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference);
+  m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
+  m.iterations = stats.solve.iterations;
+  m.residual = yardstick.residualOf(simulation.state());
+  return m;
+}
+
 struct Summary {
   double frame_ms_median = 0, frame_ms_max = 0, rms_mm_mean = 0, rms_mm_max = 0, bone_penetration_max_mm = 0;
   double iterations_mean = 0, residual_median = 0;
@@ -227,23 +250,11 @@ int main(int argc, char** argv) {
 
     for (const Config& config : stream_configs) {
       MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, config));
-      BlockDescentSolver yardstick(simulation.system(), defaults.block_descent);
-      const CollisionWorld* world = simulation.collisionWorld();
-      yardstick.setContactQuery([world](const ParticleState& state, double margin_m, ContactSet& contacts) {
-        const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
-      });
+      BlockDescentSolver yardstick = yardstickFor(simulation, defaults.block_descent);
       simulation.continueFrom(transforms[0], reference[0]);
       std::vector<Measured> rows;
-      for (std::size_t f = 1; f < frame_count; ++f) {
-        const FrameStats stats = simulation.solve(transforms[f], StartMode::warm);
-        Measured m;
-        m.frame_ms = stats.solve.total_ms;
-        m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference[f]);
-        m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
-        m.iterations = stats.solve.iterations;
-        m.residual = yardstick.residualOf(simulation.state());
-        rows.push_back(m);
-      }
+      for (std::size_t f = 1; f < frame_count; ++f)
+        rows.push_back(measured(simulation, simulation.solve(transforms[f], StartMode::warm), reference[f], yardstick));
       record(records, scene_name, "stream", config, summarise(rows), particles);
     }
 
@@ -273,22 +284,11 @@ int main(int argc, char** argv) {
     }
     for (const Config& config : cold_configs) {
       MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, config));
-      BlockDescentSolver yardstick(simulation.system(), defaults.block_descent);
-      const CollisionWorld* world = simulation.collisionWorld();
-      yardstick.setContactQuery([world](const ParticleState& state, double margin_m, ContactSet& contacts) {
-        const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
-      });
+      BlockDescentSolver yardstick = yardstickFor(simulation, defaults.block_descent);
       std::vector<Measured> rows;
-      for (std::size_t k = 0; k < poses.size(); ++k) {
-        const FrameStats stats = simulation.solve(gaitPose(bundled, poses[k]), StartMode::cold);
-        Measured m;
-        m.frame_ms = stats.solve.total_ms;
-        m.rms_mm = bench::rmsMillimetres(simulation.state().position, cold_reference[k]);
-        m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
-        m.iterations = stats.solve.iterations;
-        m.residual = yardstick.residualOf(simulation.state());
-        rows.push_back(m);
-      }
+      for (std::size_t k = 0; k < poses.size(); ++k)
+        rows.push_back(measured(simulation, simulation.solve(gaitPose(bundled, poses[k]), StartMode::cold),
+                                cold_reference[k], yardstick));
       record(records, scene_name, "cold", config, summarise(rows), particles);
     }
   }

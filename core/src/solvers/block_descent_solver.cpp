@@ -233,6 +233,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   step_length_.setZero(n);
   contact_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
   bounded_step_.assign(static_cast<std::size_t>(n), 0);
+  for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
 }
 
 void BlockDescentSolver::buildColouring() {
@@ -267,8 +268,6 @@ void BlockDescentSolver::buildColouring() {
 
 void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   contacts_.clear();
-  if (contact_query_ && contact_margin_m_ > 0)
-    for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
   if (contact_query_) contact_query_(state, contact_margin_m_, contacts_);
   // Counting sort of the contacts by particle; a pair is entered at both ends with the partner's index (the sweep
   // copies the partner's position before each colour).
@@ -396,7 +395,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       // Vertex Block Descent bounds its steps for the same reason, plus the depth it starts at inside a listed sphere,
       // so that a particle the warm start carried deep into a bone gets out in one sweep. The next sweep finds what
       // lies beyond.
-      if (bounded_step_[p]) {
+      if (contact_query_ && bounded_step_[p]) {
         double start_depth = 0;
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];

@@ -139,8 +139,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   ContactSet contacts_;
   std::vector<std::int32_t> contact_begin_;    // per particle, into contact_entries_
   std::vector<ContactEntry> contact_entries_;
-  std::vector<std::uint8_t> bounded_step_;     // per particle: collidable with contacts queried, so its step is cut to
-                                               // the detection margin
+  std::vector<std::uint8_t> bounded_step_;     // per particle: collidable (radius > 0), so with contacts queried its
+                                               // step is cut to the detection margin
 
   Eigen::VectorXd residual_squared_, step_length_;  // per particle, of the current sweep
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
