@@ -82,9 +82,11 @@ BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockD
   BlockDescentSolver yardstick(simulation.system(), settings);
   const CollisionWorld* world = simulation.collisionWorld();
   // The query refreshes the world's broad-phase caches only; MuscleSimulation hands out the world read-only.
-  yardstick.setContactQuery([world](const ParticleState& state, double margin_m, ContactSet& contacts) {
-    const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
-  });
+  yardstick.setContactQuery(
+      [world](const ParticleState& state, double margin_m, ContactSet& contacts) {
+        const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
+      },
+      world->everyParticleCollides());
   return yardstick;
 }
 

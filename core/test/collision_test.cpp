@@ -714,3 +714,77 @@ TEST(CollisionIntegration, SmallMusclePressedAgainstABonePlateEndsOutsideThePlat
     }
   }
 }
+
+// ---------------------------------------------------------------------------------------------------------------
+// Bones as distance fields
+
+namespace {
+
+// A ball bone of 25 mm radius at the origin, as a field.
+std::shared_ptr<const md::BoneDistanceField> ballField() {
+  return std::make_shared<const md::BoneDistanceField>(md::makeSphereMesh(Eigen::Vector3d::Zero(), 0.025, 4));
+}
+
+}  // namespace
+
+TEST(CollisionWorldWithBoneFields, ResolvePutsAParticleItsRadiusOutsideTheBoneAndInteriorParticlesCollideToo) {
+  // A boundary particle (2 mm radius) and an interior one (radius 0), about 10 mm from the bone at rest.
+  md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.035, 0, 0), 0.002},
+                                            {0, Eigen::Vector3d(0.035, 0, 0.003), 0.0}}, 1);
+  system.is_boundary[1] = 0;
+  md::CollisionWorld world(system, {ballField()}, {}, {"ball"});
+  EXPECT_TRUE(world.everyParticleCollides());
+  auto state = md::restState(system);
+  EXPECT_EQ(world.measure(state).muscle_bone_contacts, 0) << "no contact at rest";
+  // The bone moves 15 mm towards both: they end about 5 mm deep.
+  world.setBoneTransforms({Eigen::Isometry3d(Eigen::Translation3d(0.015, 0, 0))});
+  const md::CollisionStats pressed = world.measure(state);
+  EXPECT_EQ(pressed.muscle_bone_contacts, 2);
+  EXPECT_NEAR(pressed.max_penetration_muscle_bone_m, 0.007, 3e-4);  // 5 mm inside plus the 2 mm radius
+  EXPECT_EQ(world.resolve(state), 2);
+  const Eigen::Vector3d bone_centre(0.015, 0, 0);
+  EXPECT_NEAR((state.position.col(0) - bone_centre).norm(), 0.025 + 0.002, 3e-4);
+  EXPECT_NEAR((state.position.col(1) - bone_centre).norm(), 0.025, 3e-4);
+  EXPECT_LT(world.measure(state).max_penetration_muscle_bone_m, 3e-4);
+}
+
+TEST(CollisionWorldWithBoneFields, AParticleInsideTheBoneAtRestMayNotGoDeeperButIsNotPushedOut) {
+  // 3 mm inside the bone at rest (the data put it there): no contact at rest, nothing dropped.
+  md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.022, 0, 0), 0.002}}, 1);
+  md::CollisionWorld world(system, {ballField()}, {}, {"ball"});
+  EXPECT_EQ(world.particlesCloserThanRadiusAtRest(), 1);
+  auto state = md::restState(system);
+  EXPECT_EQ(world.measure(state).muscle_bone_contacts, 0);
+  EXPECT_EQ(world.resolve(state), 0);
+  EXPECT_EQ(state.position.col(0), system.rest_position.col(0));
+  // Pushed 2 mm deeper, it is put back at its rest depth.
+  state.position.col(0) = Eigen::Vector3d(0.020, 0, 0);
+  EXPECT_EQ(world.resolve(state), 1);
+  EXPECT_NEAR(state.position.col(0).x(), 0.022, 3e-4);
+}
+
+TEST(CollisionWorldWithBoneFields, ContactsAreHalfSpacesFoundWithinTheMarginAndFixedParticlesHaveNone) {
+  md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.030, 0, 0), 0.002},         // 3 mm gap
+                                            {0, Eigen::Vector3d(0, 0, 0.040), 0.002},         // 13 mm gap
+                                            {0, Eigen::Vector3d(0, -0.026, 0), 0.002, true}}, // fixed, touching
+                                           1);
+  md::CollisionWorld world(system, {ballField()}, {}, {"ball"});
+  md::ContactSet contacts;
+  world.findContacts(md::restState(system), contacts, 0.004);
+  ASSERT_EQ(contacts.half_spaces.size(), 1u);
+  EXPECT_TRUE(contacts.obstacles.empty());
+  const md::ContactSet::HalfSpace& contact = contacts.half_spaces[0];
+  EXPECT_EQ(contact.particle, 0);
+  // The normal is the gradient of the trilinear interpolant: within a few degrees of radial on a ball 25 voxels wide
+  // (measured 3 degrees here).
+  EXPECT_GT(contact.normal.dot(Eigen::Vector3d::UnitX()), 0.995);
+  // The plane is where the particle's sphere touches the bone: 27 mm from the centre along x.
+  EXPECT_NEAR(contact.normal.dot(contact.point), 0.027, 3e-4);
+}
+
+TEST(CollisionWorldWithBoneFields, RejectsFieldsAndNamesOfDifferentCounts) {
+  const md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.035, 0, 0), 0.002}}, 1);
+  EXPECT_THROW(md::CollisionWorld(system, std::vector<std::shared_ptr<const md::BoneDistanceField>>{ballField()},
+                                  md::CollisionSettings{}, std::vector<std::string>{}),
+               std::invalid_argument);
+}

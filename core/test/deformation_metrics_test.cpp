@@ -1,5 +1,5 @@
-// Specifications of the fidelity metrics: enclosed volume, the exact inside-bone test and its depth, fibre length
-// change, and refusal of open surfaces.
+// Specifications of the fidelity metrics: enclosed volume, the exact inside-bone test, the inside-bone count and depth
+// read from the bones' distance fields, fibre length change, and refusal of open surfaces.
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 
 #include "muscle_deformation/core/model/model_builder.hpp"
@@ -145,6 +145,37 @@ TEST(DeformationMetrics, CountsSurfaceVerticesInsideAPosedBoneWithTheirDepth) {
   const md::SceneMetrics at_rest = metrics.measure({unitCube().vertices}, system.rest_position, {});
   EXPECT_EQ(at_rest.vertices_inside_bone, 0);  // the bone at rest is far away
   EXPECT_EQ(at_rest.max_inside_bone_depth_m, 0.0);
+}
+
+TEST(DeformationMetrics, TheInsideBoneCountFromTheBonesFieldIsTheExactTestsAwayFromTheSurface) {
+  // A bone-sized ball (25 mm) and a "surface" of the unit cube's corners (a metre away) plus 3000 random vertices
+  // around the ball: every vertex more than a fifth of a millimetre from the ball's mesh is counted as the exact ray
+  // test says, and the deepest is as deep (it lies within the narrow band where the field's distances are exact).
+  const Eigen::Vector3d centre(-1, -1, -1);
+  const md::Bone bone{0, "ball", md::makeSphereMesh(centre, 0.025, 4)};
+  const md::ClosedSurfaceInsideTest exact(bone.surface, "ball");
+  const md::MassSpringSystem system = oneFibreSystem(straightFibre(5));
+  const md::DeformationMetrics metrics({bone}, {cubeMuscle()}, system);
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> coordinate(-0.03, 0.03);
+  md::Vertices surface = unitCube().vertices;
+  int exact_inside = 0;
+  double exact_deepest = 0;
+  for (int i = 0; i < 3000;) {
+    const Eigen::Vector3d point = centre + Eigen::Vector3d(coordinate(random), coordinate(random), coordinate(random));
+    const double distance = exact.distanceToSurface(point);
+    if (distance < 2e-4 || (exact.contains(point) && distance > 0.012)) continue;
+    surface.conservativeResize(3, surface.cols() + 1);
+    surface.col(surface.cols() - 1) = point;
+    if (exact.contains(point)) {
+      ++exact_inside;
+      exact_deepest = std::max(exact_deepest, distance);
+    }
+    ++i;
+  }
+  const md::SceneMetrics scene = metrics.measure({surface}, system.rest_position, {});
+  EXPECT_EQ(scene.vertices_inside_bone, exact_inside);
+  EXPECT_NEAR(scene.max_inside_bone_depth_m, exact_deepest, 1e-4);
 }
 
 TEST(DeformationMetrics, FibreLengthChangeOfAStretchedFibreIsItsStretch) {

@@ -43,7 +43,7 @@ TEST(RestOverlaps, TouchingMusclesAndBonesDoNotDeformAtRest) {
 TEST(RestOverlaps, TheCollisionReadyModelIsFinalAndIsTheOneTheSimulationRuns) {
   const SimulationSettings settings = smallSettings();
   const CollisionReadyModel model =
-      buildCollisionReadyModel(packedMuscles(), grazingBones(), settings.model, settings.collision.bone_sphere_rule);
+      buildCollisionReadyModel(packedMuscles(), grazingBones(), settings.model, settings.collision);
   const MuscleSimulation simulation(packedMuscles(), grazingBones(), settings);
   EXPECT_EQ(model.system.radius, simulation.system().radius);
   ASSERT_EQ(model.bone_spheres.size(), 2u);

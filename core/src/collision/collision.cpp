@@ -62,6 +62,14 @@ struct CollisionWorld::Impl {
   std::vector<AlignedBox> bone_box;
   std::vector<Eigen::Isometry3d> bone_transform;
 
+  // Bone objects as distance fields (empty with sphere proxies): the free particles, each one's clearance from each
+  // bone (its radius, or its rest distance where smaller), and each field's reach in the current pose.
+  std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields;
+  std::vector<std::int32_t> field_particles;
+  std::vector<Eigen::VectorXd> field_clearance;  // [bone][k] for particle field_particles[k]
+  std::vector<AlignedBox> field_reach;           // [bone], world frame
+  int closer_than_radius_at_rest = 0;
+
   std::unique_ptr<BroadPhase> broad;
   std::vector<SpherePair> pairs;
   std::vector<int> muscle_ids;                  // broad-phase ids of the muscles: 0 .. muscle_count-1
@@ -128,6 +136,67 @@ struct CollisionWorld::Impl {
     displacement = Eigen::Matrix3Xd::Zero(3, n);
     contact_count.assign(static_cast<std::size_t>(n), 0);
     touched.reserve(static_cast<std::size_t>(n));
+  }
+
+  void setFields(std::vector<std::shared_ptr<const BoneDistanceField>> fields) {
+    bone_fields = std::move(fields);
+    for (Eigen::Index p = 0; p < system.particleCount(); ++p)
+      if (!system.is_fixed[static_cast<std::size_t>(p)]) field_particles.push_back(static_cast<std::int32_t>(p));
+    std::vector<std::uint8_t> closer(static_cast<std::size_t>(system.particleCount()), 0);
+    for (std::size_t b = 0; b < bone_fields.size(); ++b) {
+      if (!bone_fields[b]) throw std::invalid_argument("CollisionWorld: bone '" + bone_names[b] + "' has no distance field");
+      const BoneDistanceField::Probe probe = bone_fields[b]->probe();
+      Eigen::VectorXd clearance(static_cast<Eigen::Index>(field_particles.size()));
+      for (std::size_t k = 0; k < field_particles.size(); ++k) {
+        const std::int32_t p = field_particles[k];
+        const double radius = system.radius[p];
+        const double at_rest = probe.distance(system.rest_position.col(p));
+        clearance[static_cast<Eigen::Index>(k)] = std::min(radius, at_rest);
+        if (at_rest < radius) closer[static_cast<std::size_t>(p)] = 1;
+      }
+      field_clearance.push_back(std::move(clearance));
+      field_reach.push_back(transformedBox(bone_fields[b]->reach(), Eigen::Isometry3d::Identity()));
+    }
+    for (const std::uint8_t c : closer) closer_than_radius_at_rest += c;
+  }
+
+  static AlignedBox transformedBox(const AlignedBox& box, const Eigen::Isometry3d& transform) {
+    AlignedBox result;
+    for (int corner = 0; corner < 8; ++corner)
+      result.extend(transform * Eigen::Vector3d(corner & 1 ? box.max.x() : box.min.x(),
+                                                 corner & 2 ? box.max.y() : box.min.y(),
+                                                 corner & 4 ? box.max.z() : box.min.z()));
+    return result;
+  }
+
+  // Every free particle within `margin` of its clearance from a bone field: visit(particle, depth, normal) with depth
+  // = clearance - distance (> 0: too close) and the field's outward unit normal in the world frame.
+  template <class Visit>
+  int forEachFieldContact(const ParticleState& state, double margin, Visit&& visit) const {
+    int contacts = 0;
+    for (std::size_t b = 0; b < bone_fields.size(); ++b) {
+      const BoneDistanceField::Probe probe = bone_fields[b]->probe();
+      const Eigen::Isometry3d to_rest = bone_transform[b].inverse();
+      const Eigen::Matrix3d rotation = bone_transform[b].linear();
+      const AlignedBox& reach = field_reach[b];
+      const Eigen::VectorXd& clearance = field_clearance[b];
+      for (std::size_t k = 0; k < field_particles.size(); ++k) {
+        const std::int32_t p = field_particles[k];
+        const Eigen::Vector3d x = state.position.col(p);
+        if ((x.array() < reach.min.array()).any() || (x.array() > reach.max.array()).any()) continue;
+        Eigen::Vector3d gradient;
+        double distance = 0;
+        const double clear = clearance[static_cast<Eigen::Index>(k)];
+        if (!probe.closerThan(to_rest * x, clear + margin, distance, gradient)) continue;
+        const double depth = clear - distance;
+        if (depth <= -margin) continue;
+        const double length = gradient.norm();
+        if (!(length > 1e-9)) continue;  // on the field's medial axis or beyond its band: no way out is defined
+        visit(p, depth, Eigen::Vector3d(rotation * gradient / length));
+        ++contacts;
+      }
+    }
+    return contacts;
   }
 
   // Grows every muscle sphere by `margin` for detection (pairs that may touch within a step), or restores it (0).
@@ -265,7 +334,24 @@ CollisionWorld::CollisionWorld(const MassSpringSystem& system, std::vector<Spher
   for (const SphereSet& s : impl_->bone_rest) bone_sphere_counts_.push_back(static_cast<int>(s.size()));
 }
 
+CollisionWorld::CollisionWorld(const MassSpringSystem& system,
+                               std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields,
+                               CollisionSettings settings, std::vector<std::string> bone_names)
+    : settings_(settings) {
+  if (bone_names.size() != bone_fields.size())
+    throw std::invalid_argument("CollisionWorld: " + std::to_string(bone_names.size()) + " bone names for " +
+                                std::to_string(bone_fields.size()) + " bone distance fields");
+  // The broad phase sees each bone as an empty sphere set: muscle-bone pairs come from the fields.
+  impl_ = std::make_unique<Impl>(system, std::vector<SphereSet>(bone_fields.size()), std::move(bone_names), settings_);
+  impl_->setFields(std::move(bone_fields));
+  bone_sphere_counts_.assign(impl_->bone_fields.size(), 0);
+}
+
 CollisionWorld::~CollisionWorld() = default;
+
+bool CollisionWorld::everyParticleCollides() const { return !impl_->bone_fields.empty(); }
+
+int CollisionWorld::particlesCloserThanRadiusAtRest() const { return impl_->closer_than_radius_at_rest; }
 
 void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per_bone_index) {
   Impl& w = *impl_;
@@ -281,6 +367,7 @@ void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per
     // Unchanged pose: keep the bone's hierarchy or grid (the seeds never update bone structures within a step).
     if (t.matrix() == w.bone_transform[ub].matrix()) continue;
     w.bone_transform[ub] = t;
+    if (!w.bone_fields.empty()) w.field_reach[ub] = Impl::transformedBox(w.bone_fields[ub]->reach(), t);
     w.bone_world[ub].centre = t * w.bone_rest[ub].centre;
     w.bone_box[ub] = sphereBounds(w.bone_world[ub]);
     w.broad->update(w.muscle_count + b, w.bone_world[ub], true);
@@ -316,6 +403,9 @@ int CollisionWorld::resolve(ParticleState& state) {
       settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
     pairs_found += static_cast<std::int64_t>(w.pairs.size());
     for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
+  });
+  bone_contacts += w.forEachFieldContact(state, 0.0, [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal) {
+    w.addDisplacement(particle, depth * normal);
   });
   stats_.bone_cd_ms += millisecondsSince(start);
 
@@ -377,6 +467,10 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
       ++bone_contacts;
     }
   });
+  bone_contacts += w.forEachFieldContact(state, std::max(0.0, margin_m),
+                                         [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal) {
+    contacts.half_spaces.push_back({particle, Eigen::Vector3d(state.position.col(particle) + depth * normal), normal});
+  });
   stats_.bone_cd_ms += millisecondsSince(start);
 
   stats_.contacts = muscle_contacts + bone_contacts;
@@ -407,6 +501,7 @@ CollisionStats CollisionWorld::measure(const ParticleState& state) const {
                                  w.bone_world[static_cast<std::size_t>(b)], pair.second));
     }
   });
+  w.forEachFieldContact(state, 0.0, [&](std::int32_t, double depth, const Eigen::Vector3d&) { bone_sum.add(depth); });
   CollisionStats result = stats_;
   result.muscle_muscle_contacts = muscle_sum.count;
   result.muscle_bone_contacts = bone_sum.count;

@@ -14,6 +14,16 @@ const char* toString(BroadPhaseKind kind) {
   return "unknown";
 }
 
+const char* toString(BoneProxyKind kind) {
+  switch (kind) {
+    case BoneProxyKind::one_ring_spheres:
+      return "one_ring_spheres";
+    case BoneProxyKind::distance_field:
+      return "distance_field";
+  }
+  return "unknown";
+}
+
 std::string validate(const CollisionSettings& settings) {
   if (settings.octree_max_depth < 0) return "octree_max_depth must be >= 0";
   if (settings.octree_min_primitives < 1) return "octree_min_primitives must be >= 1";
@@ -21,6 +31,8 @@ std::string validate(const CollisionSettings& settings) {
     return "hash_cell_scale must be a positive number";
   if (!(settings.bone_reach_margin_m >= 0.0) || !std::isfinite(settings.bone_reach_margin_m))
     return "bone_reach_margin_m must be >= 0 (metres)";
+  if (settings.bone_proxy == BoneProxyKind::distance_field)
+    if (std::string problem = validate(settings.bone_field); !problem.empty()) return problem;
   return {};
 }
 

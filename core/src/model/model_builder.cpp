@@ -304,11 +304,18 @@ MassSpringSystem systemFromParticles(const Eigen::Matrix3Xd& positions, const Pa
 }
 
 CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
-                                             const ModelSettings& settings, OneRingRule bone_sphere_rule,
+                                             const ModelSettings& settings, const CollisionSettings& collision,
                                              ModelBuildReport* report) {
   CollisionReadyModel model;
   model.system = buildMassSpringSystem(muscles, bones, settings, report);
-  for (const Bone& bone : bones) model.bone_spheres.push_back(boneSpheresOneRing(bone.surface, bone_sphere_rule));
+  if (collision.bone_proxy == BoneProxyKind::distance_field) {
+    for (const Bone& bone : bones)
+      model.bone_fields.push_back(
+          std::make_shared<const BoneDistanceField>(bone.surface, collision.bone_field, "bone '" + bone.name + "'"));
+  } else {
+    for (const Bone& bone : bones)
+      model.bone_spheres.push_back(boneSpheresOneRing(bone.surface, collision.bone_sphere_rule));
+  }
   model.rest_overlaps = clearRestOverlaps(model.system, model.bone_spheres);
   return model;
 }

@@ -31,7 +31,7 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
   if (settings_.measure_fidelity && skinning_) {
     const auto start = std::chrono::steady_clock::now();
     try {
-      metrics_ = std::make_unique<DeformationMetrics>(sim.bones(), sim.muscles(), sim.system());
+      metrics_ = std::make_unique<DeformationMetrics>(sim.bones(), sim.muscles(), sim.system(), sim.boneFields());
     } catch (const std::exception& e) {
       metrics_problem_ = e.what();
     }
@@ -93,15 +93,30 @@ std::string DeformationPipeline::describe() const {
     boundary += m.boundary_particles;
   }
   long bone_spheres = 0, muscle_spheres = 0;
+  std::string bone_proxy;
   if (const CollisionWorld* world = sim.collisionWorld()) {
     for (int count : world->boneSphereCounts()) bone_spheres += count;
     muscle_spheres = world->muscleSphereCount();
+    if (world->everyParticleCollides()) {
+      double field_ms = 0, field_mib = 0;
+      for (const auto& field : sim.boneFields()) {
+        field_ms += field->buildMilliseconds();
+        field_mib += static_cast<double>(field->memoryBytes()) / (1024.0 * 1024.0);
+      }
+      std::ostringstream fields;
+      fields << "bones as distance fields (" << sim.settings().collision.bone_field.voxel_m * 1000 << " mm voxels, "
+             << field_mib << " MiB, built in " << field_ms << " ms; " << world->particlesCloserThanRadiusAtRest()
+             << " particles closer to a bone at rest than their radius, held at that depth)";
+      bone_proxy = fields.str();
+    } else {
+      bone_proxy = std::to_string(bone_spheres) + " bone spheres";
+    }
   }
   std::ostringstream out;
   out << system.muscleCount() << " muscles, " << sim.bones().size() << " bones; " << system.particleCount()
       << " particles (" << fixed << " fixed, " << boundary << " on the boundary), " << system.springs.size()
       << " springs; solver " << toString(sim.settings().solver_kind) << "; collision " << (sim.collisionWorld() ? "on" : "off") << ": " << muscle_spheres
-      << " muscle spheres, " << bone_spheres << " bone spheres; model memory "
+      << " muscle spheres, " << bone_proxy << "; model memory "
       << static_cast<double>(modelBytes()) / (1024.0 * 1024.0) << " MiB; build " << report.build_ms << " ms";
   if (skinning_)
     out << ", surface skinning (" << toString(skinning_->settings().method) << ") " << skinning_setup_ms_ << " ms";

@@ -139,6 +139,12 @@ std::vector<SettingSpec> buildTable() {
                              [](CoreSettings& s) -> BroadPhaseKind& { return s.pipeline.simulation.collision.broad_phase; }),
       number("bone_reach_margin_m", "m", 0.0, 10.0, "a bone is tested only where its spheres grown by this reach a muscle",
              [](CoreSettings& s) -> double& { return s.pipeline.simulation.collision.bone_reach_margin_m; }),
+      choice<BoneProxyKind>("bone_proxy", {"one_ring_spheres", "distance_field"},
+                            {BoneProxyKind::one_ring_spheres, BoneProxyKind::distance_field},
+                            "what stands in for a bone: the seeds' spheres or the bone's signed distance field",
+                            [](CoreSettings& s) -> BoneProxyKind& { return s.pipeline.simulation.collision.bone_proxy; }),
+      number("bone_field_voxel_m", "m", 1e-4, 0.01, "distance_field: grid spacing of each bone's field",
+             [](CoreSettings& s) -> double& { return s.pipeline.simulation.collision.bone_field.voxel_m; }),
       // Surfaces
       boolean("surfaces", "precompute surface skinning",
               [](CoreSettings& s) -> bool& { return s.pipeline.skin_surfaces; }),

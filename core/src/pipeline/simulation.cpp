@@ -12,12 +12,18 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
     throw std::invalid_argument("collision settings: " + problem);
   if (settings_.collisions) {
     CollisionReadyModel model =
-        buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision.bone_sphere_rule, &build_report_);
+        buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision, &build_report_);
     system_ = std::move(model.system);
     rest_overlaps_ = model.rest_overlaps;
     std::vector<std::string> bone_names;
     for (const Bone& bone : bones_) bone_names.push_back(bone.name);
-    collision_ = std::make_unique<CollisionWorld>(system_, std::move(model.bone_spheres), settings_.collision, bone_names);
+    if (settings_.collision.bone_proxy == BoneProxyKind::distance_field) {
+      bone_fields_ = model.bone_fields;
+      collision_ = std::make_unique<CollisionWorld>(system_, std::move(model.bone_fields), settings_.collision, bone_names);
+    } else {
+      collision_ = std::make_unique<CollisionWorld>(system_, std::move(model.bone_spheres), settings_.collision,
+                                                    bone_names);
+    }
   } else {
     system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
   }
@@ -30,7 +36,8 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
     solver_->setContactQuery(
         [this](const ParticleState& state, double margin_m, ContactSet& contacts) {
           collision_->findContacts(state, contacts, margin_m);
-        });
+        },
+        collision_->everyParticleCollides());
   state_ = restState(system_);
 }
 

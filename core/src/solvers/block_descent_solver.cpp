@@ -78,26 +78,36 @@ inline void addSpring(const double* x, const double* other, double stiffness, do
   block.addOuter(stiffness * (1.0 - transverse) * inverse_length * inverse_length, dx, dy, dz);
 }
 
-// One-sided contact spring of stiffness kc keeping `x` at least `distance` from `centre`.
-// `curvature_scale` multiplies the Hessian only: 2 for a partner that moves in the same parallel step (see sweep()).
-inline void addContact(const double* x, const Eigen::Vector3d& centre, double distance, double stiffness,
-                       double curvature_scale, Block& block) {
-  double dx = x[0] - centre.x(), dy = x[1] - centre.y(), dz = x[2] - centre.z();
-  const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
-  if (length >= distance) return;
-  if (length > 0.0) {
-    dx /= length;
-    dy /= length;
-    dz /= length;
-  } else {
-    dx = 1.0;
-    dy = dz = 0.0;
+}  // namespace
+
+double BlockDescentSolver::ContactEntry::depth(const Eigen::Vector3d& x, Eigen::Vector3d& direction) const {
+  if (partner == kHalfSpace) {
+    direction = normal;
+    return -normal.dot(x - centre);
   }
-  const double push = stiffness * (distance - length);
-  block.fx += push * dx;
-  block.fy += push * dy;
-  block.fz += push * dz;
-  block.addOuter(curvature_scale * stiffness, dx, dy, dz);
+  const Eigen::Vector3d away = x - centre;
+  const double length = away.norm();
+  direction = length > 0.0 ? Eigen::Vector3d(away / length) : Eigen::Vector3d::UnitX();
+  return distance - length;
+}
+
+namespace {
+
+using ContactEntry = BlockDescentSolver::ContactEntry;
+
+// One-sided contact spring of stiffness kc pushing `x` out of a contact it is inside of (a sphere it must keep its
+// distance from, or a half-space). `curvature_scale` multiplies the Hessian only: 2 for a partner that moves in the same
+// parallel step (see sweep()).
+inline void addContact(const Eigen::Vector3d& x, const ContactEntry& entry, double stiffness, double curvature_scale,
+                       Block& block) {
+  Eigen::Vector3d direction;
+  const double depth = entry.depth(x, direction);
+  if (depth <= 0) return;
+  const double push = stiffness * depth;
+  block.fx += push * direction.x();
+  block.fy += push * direction.y();
+  block.fz += push * direction.z();
+  block.addOuter(curvature_scale * stiffness, direction.x(), direction.y(), direction.z());
 }
 
 inline double springEnergy(const Eigen::Vector3d& x, const Eigen::Vector3d& other, double stiffness, double rest_length) {
@@ -105,8 +115,8 @@ inline double springEnergy(const Eigen::Vector3d& x, const Eigen::Vector3d& othe
   return 0.5 * stiffness * stretch * stretch;
 }
 
-inline double contactEnergy(const Eigen::Vector3d& x, const Eigen::Vector3d& centre, double distance, double stiffness) {
-  const double depth = distance - (x - centre).norm();
+inline double contactEnergy(const Eigen::Vector3d& x, const ContactEntry& entry, double stiffness) {
+  const double depth = entry.depth(x);
   return depth > 0 ? 0.5 * stiffness * depth * depth : 0.0;
 }
 
@@ -236,6 +246,12 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
 }
 
+void BlockDescentSolver::setContactQuery(ContactQuery query, bool every_particle_collides) {
+  contact_query_ = std::move(query);
+  for (Eigen::Index i = 0; i < system_.radius.size(); ++i)
+    bounded_step_[static_cast<std::size_t>(i)] = every_particle_collides || system_.radius[i] > 0;
+}
+
 void BlockDescentSolver::buildColouring() {
   // Greedy colouring of the free particles in index order: the smallest colour no spring neighbour has. Particles of
   // one colour share no spring, so their steps are independent.
@@ -273,6 +289,7 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   // copies the partner's position before each colour).
   std::fill(contact_begin_.begin(), contact_begin_.end(), 0);
   for (const auto& o : contacts_.obstacles) ++contact_begin_[static_cast<std::size_t>(o.particle) + 1];
+  for (const auto& h : contacts_.half_spaces) ++contact_begin_[static_cast<std::size_t>(h.particle) + 1];
   for (const auto& p : contacts_.pairs) {
     ++contact_begin_[static_cast<std::size_t>(p.first) + 1];
     ++contact_begin_[static_cast<std::size_t>(p.second) + 1];
@@ -281,15 +298,18 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   contact_entries_.resize(static_cast<std::size_t>(contact_begin_.back()));
   std::vector<std::int32_t> fill(contact_begin_.begin(), contact_begin_.end() - 1);
   for (const auto& o : contacts_.obstacles)
-    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(o.particle)]++)] = {o.centre, o.distance, -1,
-                                                                                              false};
+    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(o.particle)]++)] = {
+        o.centre, Eigen::Vector3d::Zero(), o.distance, ContactEntry::kObstacle, false};
+  for (const auto& h : contacts_.half_spaces)
+    contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(h.particle)]++)] = {
+        h.point, h.normal, 0.0, ContactEntry::kHalfSpace, false};
   for (const auto& p : contacts_.pairs) {
     const std::int32_t first_colour = colour_of_[static_cast<std::size_t>(p.first)];
     const bool same_colour = first_colour >= 0 && first_colour == colour_of_[static_cast<std::size_t>(p.second)];
     contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = {
-        Eigen::Vector3d::Zero(), p.distance, p.second, same_colour};
+        Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), p.distance, p.second, same_colour};
     contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.second)]++)] = {
-        Eigen::Vector3d::Zero(), p.distance, p.first, same_colour};
+        Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), p.distance, p.first, same_colour};
   }
 }
 
@@ -319,7 +339,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         bool touching = false;
         for (std::int32_t e = contact_begin; e < contact_end && !touching; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          touching = (position.col(p) - entry.centre).squaredNorm() < entry.distance * entry.distance;
+          touching = entry.depth(position.col(p)) > 0;
         }
         if (!touching) {
           residual_squared_[p] = 0;
@@ -339,7 +359,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          energy += contactEnergy(at, entry.centre, entry.distance, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
+          energy += contactEnergy(at, entry, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
         }
         return energy;
       };
@@ -359,7 +379,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
           // A pair's energy is one: both ends use the stiffer end's stiffness.
           const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
-          addContact(xp, entry.centre, entry.distance, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
+          addContact(x, entry, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
         }
         if (newton == 0) residual_squared_[p] = block.forceSquared();
         block.addIsotropic(regularisation_[p]);
@@ -369,7 +389,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         const auto touching = [&](const Eigen::Vector3d& at) {
           for (std::int32_t e = contact_begin; e < contact_end; ++e) {
             const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-            if ((at - entry.centre).squaredNorm() < entry.distance * entry.distance) return true;
+            if (entry.depth(at) > 0) return true;
           }
           return false;
         };
@@ -399,7 +419,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         double start_depth = 0;
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          start_depth = std::max(start_depth, entry.distance - (start - entry.centre).norm());
+          start_depth = std::max(start_depth, entry.depth(start));
         }
         const double bound = contact_margin_m_ + start_depth;
         const double length = (x - start).norm();
@@ -434,9 +454,10 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
     }
     for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-      const Eigen::Vector3d centre = entry.partner >= 0 ? Eigen::Vector3d(position.col(entry.partner)) : entry.centre;
+      ContactEntry current = entry;
+      if (entry.partner >= 0) current.centre = position.col(entry.partner);
       const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
-      addContact(xp, centre, entry.distance, pair_kc, 1.0, block);
+      addContact(Eigen::Vector3d(position.col(p)), current, pair_kc, 1.0, block);
     }
     sum += block.forceSquared();
   }

@@ -158,7 +158,12 @@ double ClosedSurfaceInsideTest::distanceToSurface(const Eigen::Vector3d& point) 
 }
 
 DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std::vector<Muscle>& muscles,
-                                       const MassSpringSystem& system) {
+                                       const MassSpringSystem& system,
+                                       std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields)
+    : bone_fields_(std::move(bone_fields)) {
+  if (!bone_fields_.empty() && bone_fields_.size() != bones.size())
+    throw MetricsError("metrics: " + std::to_string(bone_fields_.size()) + " bone distance fields for " +
+                       std::to_string(bones.size()) + " bones");
   if (static_cast<int>(muscles.size()) != system.muscleCount())
     throw MetricsError("metrics: " + std::to_string(muscles.size()) + " muscle surfaces for a system of " +
                        std::to_string(system.muscleCount()) + " muscles");
@@ -167,7 +172,14 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
       throw MetricsError("metrics: bone '" + bones[b].name + "' has id " + std::to_string(bones[b].id) +
                          " but is at position " + std::to_string(b));
     bone_names_.push_back(bones[b].name);
-    bone_tests_.emplace_back(bones[b].surface, "bone '" + bones[b].name + "'");
+    if (bone_fields_.size() < bones.size()) {
+      try {
+        bone_fields_.push_back(std::make_shared<const BoneDistanceField>(bones[b].surface, BoneFieldSettings{},
+                                                                         "bone '" + bones[b].name + "'"));
+      } catch (const BoneFieldError& error) {
+        throw MetricsError(error.what());
+      }
+    }
   }
   for (const Muscle& muscle : muscles) {
     const SurfaceTopologyReport topology = checkSurfaceTopology(muscle.surface);
@@ -217,9 +229,22 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   if (particle_positions.cols() != (fibre_begin_.empty() ? 0 : fibre_begin_.back()))
     throw MetricsError("metrics: " + std::to_string(particle_positions.cols()) + " particle positions, the system has " +
                        std::to_string(fibre_begin_.back()));
-  // Test a vertex against a posed bone by taking it back into the bone's rest frame.
-  std::vector<Eigen::Isometry3d> to_rest(bone_tests_.size(), Eigen::Isometry3d::Identity());
-  for (std::size_t b = 0; b < bone_tests_.size() && b < bone_transforms.size(); ++b) to_rest[b] = bone_transforms[b].inverse();
+  // Test a vertex against a posed bone by taking it back into the bone's rest frame; only vertices within the bone's
+  // box can be inside it.
+  const std::size_t bone_count = bone_fields_.size();
+  std::vector<Eigen::Isometry3d> to_rest(bone_count, Eigen::Isometry3d::Identity());
+  std::vector<AlignedBox> posed_box(bone_count);
+  std::vector<BoneDistanceField::Probe> probes;
+  for (std::size_t b = 0; b < bone_count; ++b) {
+    const Eigen::Isometry3d to_pose = b < bone_transforms.size() ? bone_transforms[b] : Eigen::Isometry3d::Identity();
+    to_rest[b] = to_pose.inverse();
+    const AlignedBox& reach = bone_fields_[b]->reach();
+    for (int corner = 0; corner < 8; ++corner)
+      posed_box[b].extend(to_pose * Eigen::Vector3d(corner & 1 ? reach.max.x() : reach.min.x(),
+                                                     corner & 2 ? reach.max.y() : reach.min.y(),
+                                                     corner & 4 ? reach.max.z() : reach.min.z()));
+    probes.push_back(bone_fields_[b]->probe());
+  }
 
   SceneMetrics scene;
   scene.muscles.resize(muscle_names_.size());
@@ -235,11 +260,15 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
     for (Eigen::Index v = 0; v < surface.cols(); ++v) {
       bool inside = false;
-      for (std::size_t b = 0; b < bone_tests_.size(); ++b) {
-        const Eigen::Vector3d local = to_rest[b] * surface.col(v);
-        if (!bone_tests_[b].contains(local)) continue;
+      const Eigen::Vector3d vertex = surface.col(v);
+      for (std::size_t b = 0; b < bone_count; ++b) {
+        if ((vertex.array() < posed_box[b].min.array()).any() || (vertex.array() > posed_box[b].max.array()).any())
+          continue;
+        double distance = 0;
+        Eigen::Vector3d unused;
+        if (!probes[b].closerThan(to_rest[b] * vertex, 0.0, distance, unused)) continue;
         inside = true;
-        const double depth = bone_tests_[b].distanceToSurface(local);
+        const double depth = -distance;
         if (depth > out.max_inside_bone_depth_m) {
           out.max_inside_bone_depth_m = depth;
           out.deepest_bone = bone_names_[b];

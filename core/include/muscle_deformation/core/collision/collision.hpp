@@ -1,4 +1,5 @@
-// Sphere-based collision handling between muscles and bones (thesis 4.3, GRAPP 2014 section 3.3).
+// Sphere-based collision handling between muscles and bones (thesis 4.3, GRAPP 2014 section 3.3), with bones either
+// as the seeds' sphere sets or as signed distance fields.
 //
 // Every boundary particle of a muscle is a sphere; every bone is approximated by a fixed set of spheres. After each
 // mass-spring update, overlapping spheres of different objects are pushed apart (half the overlap each, or the whole
@@ -6,6 +7,7 @@
 // tests, and every particle that collided loses its velocity. A muscle never collides with itself.
 #pragma once
 
+#include "muscle_deformation/core/collision/bone_distance_field.hpp"
 #include "muscle_deformation/core/collision/collision_broad_phase.hpp"
 #include "muscle_deformation/core/collision/collision_settings.hpp"
 #include "muscle_deformation/core/collision/collision_spheres.hpp"
@@ -51,6 +53,12 @@ class CollisionWorld {
   // Same with bone sphere sets given directly (rest frame), e.g. from a cache or a synthetic benchmark.
   CollisionWorld(const MassSpringSystem& system, std::vector<SphereSet> bone_spheres_rest,
                  CollisionSettings settings = {}, std::vector<std::string> bone_names = {});
+  // Bones as signed distance fields (rest frame; shared, e.g. with the surface metrics): every free particle, interior
+  // ones too, is kept its sphere radius outside each bone, or no deeper than it lay at rest where the data put it
+  // closer (so the rest pose has no contact and no sphere is dropped). A muscle-bone contact is then a half-space: the
+  // field linearised at the particle. Muscle-muscle contacts stay sphere pairs.
+  CollisionWorld(const MassSpringSystem& system, std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields,
+                 CollisionSettings settings, std::vector<std::string> bone_names);
   ~CollisionWorld();
   CollisionWorld(const CollisionWorld&) = delete;
   CollisionWorld& operator=(const CollisionWorld&) = delete;
@@ -78,6 +86,10 @@ class CollisionWorld {
   void resetTiming();
 
   const CollisionSettings& settings() const { return settings_; }
+  // True with bone distance fields: contacts may involve any free particle, not only those with a sphere radius.
+  bool everyParticleCollides() const;
+  // Free particles lying closer to a bone at rest than their radius (or inside it): they may not go deeper than that.
+  int particlesCloserThanRadiusAtRest() const;
   const std::vector<int>& boneSphereCounts() const { return bone_sphere_counts_; }
   const SphereSet& boneSpheresRest(int bone) const;
   int muscleSphereCount() const;  // boundary particles taking part in collision, all muscles

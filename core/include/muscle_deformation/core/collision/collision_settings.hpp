@@ -1,6 +1,8 @@
 // How the collision stage runs: broad phase, bone sphere rule, reach margin.
 #pragma once
 
+#include "muscle_deformation/core/collision/bone_distance_field.hpp"
+
 #include <string>
 
 namespace muscle_deformation {
@@ -23,6 +25,18 @@ enum class OneRingRule {
   disjoint_vertex_rings,
 };
 
+// What stands in for a bone in muscle-bone contacts.
+enum class BoneProxyKind {
+  // The seeds' spheres (thesis 4.3) against the boundary particles' spheres: a bone sphere sticks out of the bone, and
+  // a muscle sphere it overlaps at rest is shrunk or dropped (clearRestOverlaps).
+  one_ring_spheres,
+  // The bone itself: every free particle (interior ones too) is kept `radius` outside the bone's signed distance field
+  // (BoneDistanceField), or no deeper than it lay at rest when the data put it closer; nothing is dropped.
+  distance_field,
+};
+
+const char* toString(BoneProxyKind kind);
+
 struct CollisionSettings {
   // Default chosen by measurement (bench/collision_bench.cpp, 13 muscles x 64 fibres, 2-core shared machine, one
   // thread): the octree's muscle-muscle pass took 0.23-0.36 ms per iteration against the hash grid's 1.7-3.4 ms,
@@ -37,6 +51,8 @@ struct CollisionSettings {
   // skip saves (bench/economy_bench.cpp); results are the same either way.
   bool skip_bones_out_of_reach = true;
   OneRingRule bone_sphere_rule = OneRingRule::disjoint_triangle_fans;  // for bones given as meshes
+  BoneProxyKind bone_proxy = BoneProxyKind::one_ring_spheres;
+  BoneFieldSettings bone_field;  // for bone_proxy distance_field
 };
 
 // Returns an empty string when the settings are usable, otherwise what is wrong.

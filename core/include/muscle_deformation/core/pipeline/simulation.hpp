@@ -66,6 +66,8 @@ class MuscleSimulation {
   const ModelBuildReport& buildReport() const { return build_report_; }
   const SimulationSettings& settings() const { return settings_; }
   const CollisionWorld* collisionWorld() const { return collision_.get(); }
+  // The bones' distance fields (bone_proxy distance_field; empty otherwise), per bone index: shared with the metrics.
+  const std::vector<std::shared_ptr<const BoneDistanceField>>& boneFields() const { return bone_fields_; }
   // Sphere radii shrunk at build time so that the rest pose is free of contacts (clearRestOverlaps).
   const RestOverlapSummary& restOverlaps() const { return rest_overlaps_; }
 
@@ -78,6 +80,7 @@ class MuscleSimulation {
   MassSpringSystem system_;
   std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
   std::unique_ptr<CollisionWorld> collision_;
+  std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields_;
   ParticleState state_;
   BoneTransforms previous_transforms_;
   bool has_previous_ = false;

@@ -81,7 +81,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
                    const SolveLimits& limits) override;
   bool solvesContacts() const override { return true; }
-  void setContactQuery(ContactQuery query) override { contact_query_ = std::move(query); }
+  void setContactQuery(ContactQuery query, bool every_particle_collides) override;
 
   void setResidualTolerance(double relative_residual);
   // The relative RMS net force (springs and contacts, as this solver models them) on the free particles at `state`,
@@ -99,18 +99,27 @@ class BlockDescentSolver final : public SoftBodySolver {
   const Eigen::VectorXd& particleResidualsSquared() const { return residual_squared_; }
   const ContactSet& lastContacts() const { return contacts_; }
 
+  // One contact as a sweep reads it, gathered per particle (public for the sweep's inline helpers).
+  struct ContactEntry {
+    Eigen::Vector3d centre;  // obstacle centre, the partner particle's position, or a point of a half-space's plane
+    Eigen::Vector3d normal;  // a half-space's outward unit normal (unused otherwise)
+    double distance;         // least distance from the centre (spheres); 0 for a half-space
+    std::int32_t partner;    // particle index of the partner, kObstacle or kHalfSpace
+    bool same_colour;        // the partner is moved in the same parallel step
+    static constexpr std::int32_t kObstacle = -1, kHalfSpace = -2;
+    // How far `x` is inside the contact (> 0 when touching) and the direction that leaves it.
+    double depth(const Eigen::Vector3d& x, Eigen::Vector3d& direction) const;
+    double depth(const Eigen::Vector3d& x) const {
+      Eigen::Vector3d unused;
+      return depth(x, unused);
+    }
+  };
+
  private:
   struct NeighbourSpring {
     std::int32_t other;
     double stiffness, rest_length;  // double: a spring at its rest length exerts exactly no force
   };
-  struct ContactEntry {
-    Eigen::Vector3d centre;  // obstacle centre, or the partner particle's position when the contacts were found
-    double distance;
-    std::int32_t partner;    // particle index of the partner, or -1 for an obstacle
-    bool same_colour;        // the partner is moved in the same parallel step
-  };
-
   void buildColouring();
   void gatherContacts(const ParticleState& state);
   // One sweep over every colour (or only the particles touching a contact); returns the summed squared residual force
@@ -139,8 +148,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   ContactSet contacts_;
   std::vector<std::int32_t> contact_begin_;    // per particle, into contact_entries_
   std::vector<ContactEntry> contact_entries_;
-  std::vector<std::uint8_t> bounded_step_;     // per particle: collidable (radius > 0), so with contacts queried its
-                                               // step is cut to the detection margin
+  std::vector<std::uint8_t> bounded_step_;     // per particle: collidable (radius > 0, or any free particle against a
+                                               // bone field), so with contacts queried its step is cut to the margin
 
   Eigen::VectorXd residual_squared_, step_length_;  // per particle, of the current sweep
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;

@@ -25,14 +25,24 @@ struct ContactSet {
     std::int32_t first, second;
     double distance;
   };
+  // A particle kept on the outer side of a plane that does not move during the solve: n . (x - point) >= 0 with `normal`
+  // of unit length. A bone's distance field linearised where the particle stood when the contacts were gathered (the
+  // next gathering linearises again), so a contact is a lookup, not a set of spheres.
+  struct HalfSpace {
+    std::int32_t particle;
+    Eigen::Vector3d point;
+    Eigen::Vector3d normal;
+  };
   std::vector<Obstacle> obstacles;
   std::vector<Pair> pairs;
+  std::vector<HalfSpace> half_spaces;
 
   void clear() {
     obstacles.clear();
     pairs.clear();
+    half_spaces.clear();
   }
-  std::size_t size() const { return obstacles.size() + pairs.size(); }
+  std::size_t size() const { return obstacles.size() + pairs.size() + half_spaces.size(); }
 };
 
 // Fills `contacts` with every pair at `state` that overlaps or is within `margin_m` of touching (replacing what it

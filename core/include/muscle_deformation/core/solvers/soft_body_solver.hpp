@@ -31,9 +31,10 @@ class SoftBodySolver {
   virtual void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                            double time_budget_ms, const SolveLimits& limits) = 0;
   // Solvers that keep contacts as energy inside their solve (rather than through `after_update`) say so here and take
-  // the collision stage's contact query; the others ignore it.
+  // the collision stage's contact query; the others ignore it. `every_particle_collides`: the query lists contacts of
+  // interior particles too (a bone distance field), not only of boundary particles with a sphere radius.
   virtual bool solvesContacts() const { return false; }
-  virtual void setContactQuery(ContactQuery) {}
+  virtual void setContactQuery(ContactQuery, bool /*every_particle_collides*/) {}
 };
 
 }  // namespace muscle_deformation
