@@ -38,7 +38,7 @@ const char* const kUsage =
     "  generate_fibres --surface MUSCLE [--origin-bone BONE] [--insertion-bone BONE] --out FIBRES.vtk [options]\n"
     "  generate_fibres --scene SCENE.yaml [--package-dir DIR] [--muscles NAME_OR_TAG,...] [--report FILE.json]\n"
     "                  [options]\n"
-    "Surfaces: .stl .vtk .vtp .obj (muscle: closed, 2-manifold). Output: VTK legacy polylines, metres,\n"
+    "Surfaces: .stl .ply .vtk .vtp .obj (muscle: closed, 2-manifold). Output: VTK legacy polylines, metres,\n"
     "origin -> insertion. Without bones the origin is the end of the principal axis with greater Z.\n"
     "options:\n"
     "  --fibres N        number of fibres (default 64)\n"

@@ -2,11 +2,10 @@
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
 
-#include <vtkCellArray.h>
+#include "poly_data_conversion.hpp"
+
 #include <vtkFillHolesFilter.h>
-#include <vtkIdList.h>
 #include <vtkNew.h>
-#include <vtkPoints.h>
 #include <vtkPolyData.h>
 #include <vtkPolyDataConnectivityFilter.h>
 #include <vtkPolyDataNormals.h>
@@ -58,19 +57,21 @@ std::map<Edge, int> edgeUses(const IndexedSurface& surface) {
   return uses;
 }
 
+// Every vertex kept (vertex i stays point i), unlike toMesh below which drops unused ones.
+TriangleMesh asMesh(const IndexedSurface& surface) {
+  TriangleMesh mesh;
+  mesh.vertices.resize(3, static_cast<Eigen::Index>(surface.vertices.size()));
+  for (std::size_t v = 0; v < surface.vertices.size(); ++v)
+    mesh.vertices.col(static_cast<Eigen::Index>(v)) = surface.vertices[v];
+  mesh.triangles.resize(3, static_cast<Eigen::Index>(surface.triangles.size()));
+  for (std::size_t t = 0; t < surface.triangles.size(); ++t)
+    for (int k = 0; k < 3; ++k)
+      mesh.triangles(k, static_cast<Eigen::Index>(t)) = surface.triangles[t][static_cast<std::size_t>(k)];
+  return mesh;
+}
+
 vtkSmartPointer<vtkPolyData> toPolyData(const IndexedSurface& surface) {
-  vtkNew<vtkPoints> points;
-  points->SetDataTypeToDouble();
-  for (const Eigen::Vector3d& v : surface.vertices) points->InsertNextPoint(v.x(), v.y(), v.z());
-  vtkNew<vtkCellArray> polys;
-  for (const Triangle& t : surface.triangles) {
-    const vtkIdType ids[3] = {t[0], t[1], t[2]};
-    polys->InsertNextCell(3, ids);
-  }
-  auto data = vtkSmartPointer<vtkPolyData>::New();
-  data->SetPoints(points);
-  data->SetPolys(polys);
-  return data;
+  return muscle_deformation::toPolyData(asMesh(surface));
 }
 
 // Triangles of `data` (filters may leave polygons; they are triangulated first), keeping point indices.
@@ -80,21 +81,13 @@ IndexedSurface fromPolyData(vtkPolyData* data) {
   triangulate->PassVertsOff();
   triangulate->PassLinesOff();
   triangulate->Update();
-  vtkPolyData* triangles = triangulate->GetOutput();
+  const TriangleMesh mesh = toTriangleMesh(triangulate->GetOutput());
   IndexedSurface surface;
-  surface.vertices.resize(static_cast<std::size_t>(triangles->GetNumberOfPoints()));
-  for (vtkIdType i = 0; i < triangles->GetNumberOfPoints(); ++i) {
-    double p[3];
-    triangles->GetPoint(i, p);
-    surface.vertices[static_cast<std::size_t>(i)] = Eigen::Vector3d(p[0], p[1], p[2]);
-  }
-  vtkNew<vtkIdList> ids;
-  vtkCellArray* polys = triangles->GetPolys();
-  for (polys->InitTraversal(); polys->GetNextCell(ids);) {
-    if (ids->GetNumberOfIds() != 3) continue;
-    surface.triangles.push_back(
-        {static_cast<int>(ids->GetId(0)), static_cast<int>(ids->GetId(1)), static_cast<int>(ids->GetId(2))});
-  }
+  surface.vertices.reserve(static_cast<std::size_t>(mesh.vertexCount()));
+  for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v) surface.vertices.push_back(mesh.vertices.col(v));
+  surface.triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
+  for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
+    surface.triangles.push_back({mesh.triangles(0, t), mesh.triangles(1, t), mesh.triangles(2, t)});
   return surface;
 }
 

@@ -9,19 +9,23 @@
 
 namespace muscle_deformation {
 
-// Thrown by every loader. what() names the file, the line (for text formats) or byte offset, and the problem,
-// e.g. "data/fibres/sartorius.vtk line 12: expected 3 coordinates, got 2".
+// Thrown by every loader. what() names the file and the problem, and the line where the format's reader knows it,
+// e.g. "muscle.obj line 12: vertex index 9 is out of range: the file defines only 8 vertices" or
+// "muscle.vtk: cannot be read as legacy VTK polydata: Error reading binary cell data!".
 class LoadError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
 
 // Reads a triangle surface. Format from the extension (case-insensitive):
-//   .stl (binary or ASCII, detected from content), .vtk (legacy POLYDATA, ASCII or BINARY, POLYGONS; polygons
-//   with more than three vertices are fanned into triangles), .vtp (VTK XML PolyData, ascii or base64 binary
-//   DataArrays, Polys), .obj (v / f records; f may use v/vt/vn and negative indices).
+//   .stl (binary or ASCII, detected from content), .ply (ASCII or binary), .vtk (legacy POLYDATA, ASCII or BINARY,
+//   POLYGONS and TRIANGLE_STRIPS), .vtp (VTK XML PolyData: any encoding and compression VTK reads, Polys and Strips),
+//   .obj (v / f records; f may use v/vt/vn and negative indices). Polygons with more than three vertices are fanned
+//   into triangles from their first vertex.
 // STL vertices are welded (exact coordinate matches) so that topology checks are meaningful.
-// Coordinates are returned as stored, multiplied by scale_to_metres.
+// Coordinates are returned as stored, multiplied by scale_to_metres. Text coordinates of a 32-bit float type are
+// rounded to float in ASCII STL and PLY files and in legacy .vtk POINTS declared float (VTK's readers), not in .vtp
+// or .obj files.
 TriangleMesh loadTriangleMesh(const std::string& path, double scale_to_metres = 1.0);
 
 // Like loadTriangleMesh, then requires a closed, 2-manifold, consistently oriented surface; throws LoadError
@@ -32,7 +36,7 @@ TriangleMesh loadClosedSurface(const std::string& path, double scale_to_metres =
 // Degenerate lines (fewer than 2 points) are returned as they are; buildMassSpringSystem skips them with a warning.
 std::vector<Polyline> loadPolylines(const std::string& path, double scale_to_metres = 1.0);
 
-// Writers used by tools and tests: ASCII legacy VTK POLYDATA with LINES, binary STL.
+// Writers used by tools and tests: binary legacy VTK POLYDATA with LINES (coordinates read back exactly), binary STL.
 void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines);
 void saveTriangleMeshStl(const std::string& path, const TriangleMesh& mesh);
 
