@@ -100,7 +100,10 @@ bool BoneDistanceField::Probe::closerThan(const Eigen::Vector3d& point, double l
   const double nearest = impl_->accessor.getValue(openvdb::Coord(static_cast<openvdb::Int32>(index.x()),
                                                                  static_cast<openvdb::Int32>(index.y()),
                                                                  static_cast<openvdb::Int32>(index.z())));
-  if (nearest - impl_->half_diagonal >= limit) return false;
+  if (nearest - impl_->half_diagonal >= limit) {
+    distance = nearest - impl_->half_diagonal;  // a lower bound
+    return false;
+  }
   distance = this->distance(point, gradient);
   return distance < limit;
 }

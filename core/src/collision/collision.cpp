@@ -69,6 +69,13 @@ struct CollisionWorld::Impl {
   std::vector<Eigen::VectorXd> field_clearance;  // [bone][k] for particle field_particles[k]
   std::vector<AlignedBox> field_reach;           // [bone], world frame
   int closer_than_radius_at_rest = 0;
+  // What the last read of each (bone, particle) proved: the distance, or a lower bound of it, at a point of the bone's
+  // frame. Until the particle has moved far enough from that point to possibly come within reach, it is not read again
+  // (the interpolated field changes at most sqrt(3) times as fast as the point moves: each axis at most as fast).
+  // A cache of reads: skipping is exact, the contacts found are the same.
+  mutable std::vector<Eigen::Matrix3Xd> field_known_at;
+  mutable std::vector<Eigen::VectorXd> field_known_distance;
+  static constexpr double kFieldSlope = 1.7320508075688772;
 
   std::unique_ptr<BroadPhase> broad;
   std::vector<SpherePair> pairs;
@@ -146,15 +153,23 @@ struct CollisionWorld::Impl {
     for (std::size_t b = 0; b < bone_fields.size(); ++b) {
       if (!bone_fields[b]) throw std::invalid_argument("CollisionWorld: bone '" + bone_names[b] + "' has no distance field");
       const BoneDistanceField::Probe probe = bone_fields[b]->probe();
-      Eigen::VectorXd clearance(static_cast<Eigen::Index>(field_particles.size()));
+      const Eigen::Index count = static_cast<Eigen::Index>(field_particles.size());
+      Eigen::VectorXd clearance(count);
+      Eigen::Matrix3Xd known_at(3, count);
+      Eigen::VectorXd known_distance(count);
       for (std::size_t k = 0; k < field_particles.size(); ++k) {
         const std::int32_t p = field_particles[k];
+        const Eigen::Index kk = static_cast<Eigen::Index>(k);
         const double radius = system.radius[p];
         const double at_rest = probe.distance(system.rest_position.col(p));
-        clearance[static_cast<Eigen::Index>(k)] = std::min(radius, at_rest);
+        clearance[kk] = std::min(radius, at_rest);
         if (at_rest < radius) closer[static_cast<std::size_t>(p)] = 1;
+        known_at.col(kk) = system.rest_position.col(p);
+        known_distance[kk] = at_rest;
       }
       field_clearance.push_back(std::move(clearance));
+      field_known_at.push_back(std::move(known_at));
+      field_known_distance.push_back(std::move(known_distance));
       field_reach.push_back(transformedBox(bone_fields[b]->reach(), Eigen::Isometry3d::Identity()));
     }
     for (const std::uint8_t c : closer) closer_than_radius_at_rest += c;
@@ -180,14 +195,22 @@ struct CollisionWorld::Impl {
       const Eigen::Matrix3d rotation = bone_transform[b].linear();
       const AlignedBox& reach = field_reach[b];
       const Eigen::VectorXd& clearance = field_clearance[b];
+      Eigen::Matrix3Xd& known_at = field_known_at[b];
+      Eigen::VectorXd& known_distance = field_known_distance[b];
       for (std::size_t k = 0; k < field_particles.size(); ++k) {
         const std::int32_t p = field_particles[k];
+        const Eigen::Index kk = static_cast<Eigen::Index>(k);
         const Eigen::Vector3d x = state.position.col(p);
+        const double clear = clearance[kk];
+        const Eigen::Vector3d local = to_rest * x;
+        if (known_distance[kk] - kFieldSlope * (local - known_at.col(kk)).norm() >= clear + margin) continue;
         if ((x.array() < reach.min.array()).any() || (x.array() > reach.max.array()).any()) continue;
         Eigen::Vector3d gradient;
         double distance = 0;
-        const double clear = clearance[static_cast<Eigen::Index>(k)];
-        if (!probe.closerThan(to_rest * x, clear + margin, distance, gradient)) continue;
+        const bool closer = probe.closerThan(local, clear + margin, distance, gradient);
+        known_at.col(kk) = local;
+        known_distance[kk] = distance;
+        if (!closer) continue;
         const double depth = clear - distance;
         if (depth <= -margin) continue;
         const double length = gradient.norm();

@@ -236,6 +236,11 @@ CoreSettings nodeDefaultSettings() {
   settings.pipeline.simulation.solver.stopping_rule = StoppingRule::time_budget;
   settings.pipeline.simulation.solver.max_iterations = 30;
   settings.pipeline.simulation.solver.time_budget_ms = 12.0;
+  // Measured on the bundled gait (bench/bone_proxy_bench.cpp): the bone's own field keeps particles out of the real
+  // bone (0.01 mm deeper than at rest, against 0.98 mm; 1.2 mm against 10.3 mm at hip 110 / knee 130 deg) at the same
+  // frame cost, drops none of the 6229 muscle spheres the seeds' bone spheres overlap at rest, and the volume error
+  // falls from 3.46 to 2.98 % mean.
+  settings.pipeline.simulation.collision.bone_proxy = BoneProxyKind::distance_field;
   return settings;
 }
 

@@ -49,9 +49,10 @@ class BoneDistanceField {
     double distance(const Eigen::Vector3d& point) const;
     // The same with the gradient of the interpolated field (unit length up to interpolation, zero beyond the band).
     double distance(const Eigen::Vector3d& point, Eigen::Vector3d& gradient) const;
-    // Whether the point may lie closer than `limit`: false when one voxel read proves it does not (a distance changes
-    // no faster than the point moves, so it is within half a voxel diagonal of the nearest voxel's value); otherwise
-    // true with distance and gradient as above. Most points a muscle has are far from every bone: one read each.
+    // Whether the point lies closer than `limit`, with distance and gradient as above when it does. When one voxel read
+    // proves it does not (a distance changes no faster than the point moves, so it is within half a voxel diagonal of
+    // the nearest voxel's value), `distance` is that proof's lower bound and the gradient is left alone. Most points a
+    // muscle has are far from every bone: one read each.
     bool closerThan(const Eigen::Vector3d& point, double limit, double& distance, Eigen::Vector3d& gradient) const;
 
    private:
