@@ -512,8 +512,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
       descriptions.push_back(scene_.muscle_descriptions[index]);
       muscles.push_back(scene_.muscles[index]);
     }
-    service_pipeline_ =
-        std::make_unique<DeformationPipeline>(std::move(descriptions), std::move(muscles), scene_.bones, settings);
+    // The stream's bone fields serve the service too: building them is most of a pipeline's set-up.
+    service_pipeline_ = std::make_unique<DeformationPipeline>(std::move(descriptions), std::move(muscles), scene_.bones,
+                                                              settings, stream_->simulation().boneFields());
     service_pipeline_key_ = key.str();
   }
   DeformationPipeline& pipeline = *service_pipeline_;

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/collision/bone_distance_field.hpp"
 
+#include "muscle_deformation/core/model/model.hpp"
+
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
 
@@ -137,6 +139,13 @@ double BoneDistanceField::Probe::distance(const Eigen::Vector3d& point, Eigen::V
   gradient.y() = (along_y_dy[0] + f.x() * (along_y_dy[1] - along_y_dy[0])) * impl_->inverse_voxel;
   gradient.z() = (along_y_dz[0] + f.x() * (along_y_dz[1] - along_y_dz[0])) * impl_->inverse_voxel;
   return value;
+}
+
+BoneFields buildBoneFields(const std::vector<Bone>& bones, const BoneFieldSettings& settings) {
+  BoneFields fields;
+  for (const Bone& bone : bones)
+    fields.push_back(std::make_shared<const BoneDistanceField>(bone.surface, settings, "bone '" + bone.name + "'"));
+  return fields;
 }
 
 }  // namespace muscle_deformation

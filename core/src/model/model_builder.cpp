@@ -305,13 +305,22 @@ MassSpringSystem systemFromParticles(const Eigen::Matrix3Xd& positions, const Pa
 
 CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                              const ModelSettings& settings, const CollisionSettings& collision,
-                                             ModelBuildReport* report) {
+                                             ModelBuildReport* report, const BoneFields& prebuilt_fields) {
   CollisionReadyModel model;
   model.system = buildMassSpringSystem(muscles, bones, settings, report);
   if (collision.bone_proxy == BoneProxyKind::distance_field) {
-    for (const Bone& bone : bones)
-      model.bone_fields.push_back(
-          std::make_shared<const BoneDistanceField>(bone.surface, collision.bone_field, "bone '" + bone.name + "'"));
+    if (prebuilt_fields.empty()) {
+      model.bone_fields = buildBoneFields(bones, collision.bone_field);
+    } else {
+      if (prebuilt_fields.size() != bones.size())
+        throw ModelError("prebuilt bone fields: " + std::to_string(prebuilt_fields.size()) + " fields for " +
+                         std::to_string(bones.size()) + " bones");
+      for (const auto& field : prebuilt_fields)
+        if (!field || field->settings().voxel_m != collision.bone_field.voxel_m ||
+            field->settings().exterior_band_m != collision.bone_field.exterior_band_m)
+          throw ModelError("prebuilt bone fields were built with other settings than collision.bone_field");
+      model.bone_fields = prebuilt_fields;
+    }
   } else {
     for (const Bone& bone : bones)
       model.bone_spheres.push_back(boneSpheresOneRing(bone.surface, collision.bone_sphere_rule));

@@ -13,9 +13,11 @@ double millisecondsSince(std::chrono::steady_clock::time_point start) {
 }  // namespace
 
 DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
-                                         std::vector<Bone> bones, const PipelineSettings& settings)
+                                         std::vector<Bone> bones, const PipelineSettings& settings,
+                                         const BoneFields& bone_fields)
     : descriptions_(std::move(descriptions)), settings_(settings) {
-  simulation_ = std::make_unique<MuscleSimulation>(std::move(muscles), std::move(bones), settings_.simulation);
+  simulation_ =
+      std::make_unique<MuscleSimulation>(std::move(muscles), std::move(bones), settings_.simulation, bone_fields);
   const MuscleSimulation& sim = *simulation_;
   if (settings_.skin_surfaces || settings_.measure_fidelity) {
     const auto start = std::chrono::steady_clock::now();

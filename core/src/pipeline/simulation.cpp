@@ -5,14 +5,15 @@
 
 namespace muscle_deformation {
 
-MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings)
+MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
+                                   const BoneFields& bone_fields)
     : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
   for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
   if (settings_.collisions) {
     CollisionReadyModel model =
-        buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision, &build_report_);
+        buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision, &build_report_, bone_fields);
     system_ = std::move(model.system);
     rest_overlaps_ = model.rest_overlaps;
     std::vector<std::string> bone_names;

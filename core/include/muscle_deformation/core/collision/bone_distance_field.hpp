@@ -15,6 +15,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace muscle_deformation {
 
@@ -82,5 +83,13 @@ class BoneDistanceField {
   double voxel_m_ = 0;
   double build_ms_ = 0;
 };
+
+// One field per bone, shared: built once per scene and handed to every simulation, pipeline and metrics that use it
+// (building them is most of a scene's start-up).
+using BoneFields = std::vector<std::shared_ptr<const BoneDistanceField>>;
+
+struct Bone;
+// Builds every bone's field (names in error messages are "bone '<name>'").
+BoneFields buildBoneFields(const std::vector<Bone>& bones, const BoneFieldSettings& settings);
 
 }  // namespace muscle_deformation

@@ -64,6 +64,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
 // the rest pose is free of contacts (clearRestOverlaps), and each bone's proxy in its rest frame: its sphere set
 // (boneSpheresOneRing) or its signed distance field, as `collision.bone_proxy` says. With fields only muscle-muscle
 // overlaps are cleared: the field keeps each particle no deeper than it lies at rest instead of shrinking anything.
+// `prebuilt_fields` (one per bone, built with collision.bone_field) are used instead of building them again.
 // Build solvers after it, never before: they precompute from the radii.
 struct CollisionReadyModel {
   MassSpringSystem system;
@@ -73,7 +74,7 @@ struct CollisionReadyModel {
 };
 CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                              const ModelSettings& settings, const CollisionSettings& collision,
-                                             ModelBuildReport* report = nullptr);
+                                             ModelBuildReport* report = nullptr, const BoneFields& prebuilt_fields = {});
 
 // A bare system from given particles and springs (no fibres, no bones), for tests and small analytic set-ups:
 // uniform mass, stiffness = material / rest length, no particle fixed or boundary, zero radius.

@@ -37,8 +37,9 @@ class DeformationPipeline {
   // Builds the simulation (throws ModelError / std::invalid_argument on bad settings or input). Skinning and metrics
   // that cannot be set up (e.g. an open surface) are disabled with a reason (skinningProblem(), metricsProblem())
   // rather than failing: the particles and fibres are still useful.
+  // `bone_fields`: see MuscleSimulation (shared by the node's stream and service pipelines).
   DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
-                      std::vector<Bone> bones, const PipelineSettings& settings);
+                      std::vector<Bone> bones, const PipelineSettings& settings, const BoneFields& bone_fields = {});
 
   // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
   const PipelineFrame& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);

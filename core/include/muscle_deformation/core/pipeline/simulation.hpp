@@ -44,7 +44,10 @@ struct FrameStats {
 class MuscleSimulation {
  public:
   // Throws ModelError (invalid settings or input) or std::invalid_argument (invalid solver/collision settings).
-  MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings);
+  // `bone_fields`: the bones' distance fields already built (e.g. by another simulation of the same scene, boneFields()),
+  // used with bone_proxy distance_field instead of building them again.
+  MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
+                   const BoneFields& bone_fields = {});
 
   FrameStats solve(const Pose& pose, StartMode start);
   // The same with the pose already turned into bone transforms (boneTransformsOf(bones(), pose)), for callers that
