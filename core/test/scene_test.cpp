@@ -372,6 +372,8 @@ TEST(Scene, RelativePathsStartAtTheSceneFilesFolderWhereverItIsAndWhateverTheWor
   fs::current_path(working_directory);
   ASSERT_EQ(scene.muscles.size(), 1u);
   EXPECT_EQ(scene.muscles[0].fibres.size(), 64u);
+  EXPECT_EQ(scene.muscles[0].origin_bone, "pelvis");
+  EXPECT_EQ(scene.muscles[0].insertion_bone, "tibia_r");
 
   // A path that is not there is named as resolved, with the scene file and the muscle.
   description.muscles[0].surface_file = "meshes/gone.stl";

@@ -339,6 +339,8 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
   for (const MuscleDescription& m : scene.muscle_descriptions) {
     Muscle muscle;
     muscle.name = m.name;
+    muscle.origin_bone = m.origin_bone;
+    muscle.insertion_bone = m.insertion_bone;
     // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths start at
     // the scene file's folder.
     std::string surface_path, fibre_path;
