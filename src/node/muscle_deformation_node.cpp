@@ -112,8 +112,13 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   for (const std::string& warning : stream_->simulation().buildReport().warnings)
     ROS_WARN_STREAM("muscle_deformation: " << warning);
   if (!stream_->skinning()) ROS_WARN_STREAM("muscle_deformation: ~surfaces disabled: " << stream_->skinningProblem());
-  if (!stream_->metrics() && settings_.pipeline.measure_fidelity)
-    ROS_WARN_STREAM("muscle_deformation: surface fidelity metrics disabled: " << stream_->metricsProblem());
+  // A figure a setting turned off is information; one that something broken keeps from being measured is a warning.
+  for (const AbsentMetric& absent : absentStatsFigures(*stream_, settings_.stream.stats_metrics)) {
+    if (absent.turned_off)
+      ROS_INFO_STREAM("muscle_deformation: ~stats without " << absent.describe());
+    else
+      ROS_WARN_STREAM("muscle_deformation: ~stats without " << absent.describe());
+  }
 
   fibres_pub_ = private_node_.advertise<visualization_msgs::MarkerArray>("fibres", 1);
   particles_pub_ = private_node_.advertise<sensor_msgs::PointCloud2>("particles", 1);
@@ -382,6 +387,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   }
   if (want_stats) {
     muscle_deformation::DeformationStats stats = statsToMessage(frame, header);
+    if (!stats.has_surface_metrics && stream_->metrics() && !settings_.stream.stats_metrics)
+      stats.surface_metrics_absent_reason = "stats_metrics is false";
     stats.poses_received = counters.received;
     stats.poses_solved = counters.solved;
     stats.poses_dropped = counters.dropped;
