@@ -157,8 +157,9 @@ int main(int argc, char** argv) {
   {
     const std::string package = MD_PACKAGE_DIR;
     const SceneDescription description = loadSceneDescription(package + "/config/scenes/right_hip_thigh.yaml");
-    const Skeleton skeleton = Skeleton::fromUrdfFile(package + "/" + description.urdf_file);
-    const Scene bundled = loadScene(description, skeleton, makeUriResolver({{"muscle_deformation", package}}, package), package);
+    const UriResolver resolve = makeUriResolver({{"muscle_deformation", package}}, package);
+    const Skeleton skeleton = Skeleton::fromUrdfFile(resolveScenePath(description, description.urdf_file, resolve));
+    const Scene bundled = loadScene(description, skeleton, resolve);
     SimulationSettings bundled_settings;
     bundled_settings.solver.max_iterations = 200;
     MuscleSimulation bundled_simulation(bundled.muscles, bundled.bones, bundled_settings);

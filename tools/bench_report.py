@@ -151,7 +151,9 @@ def gait_section(csv_path):
     iterations = sorted({int(float(row["iterations"])) for row in rows})
     volume_mean = [float(row["volume_error_mean_pct"]) for row in rows if row.get("has_surface_metrics") == "True"]
     volume_max = [float(row["volume_error_max_pct"]) for row in rows if row.get("has_surface_metrics") == "True"]
-    penetration = [float(row["max_penetration_sphere_bone_m"]) * 1e3 for row in rows]
+    # Rows of a node without collision figures (has_collision_metrics False) hold NaN there; older files lack the flag.
+    penetration = [float(row["max_penetration_sphere_bone_m"]) * 1e3 for row in rows
+                   if row.get("has_collision_metrics", "True") == "True"]
     surface_depth = [float(row["max_surface_inside_bone_m"]) * 1e3 for row in rows if row.get("has_surface_metrics") == "True"]
     median = statistics.median(solve)
     stamp = datetime.datetime.fromtimestamp(os.path.getmtime(csv_path), datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -165,7 +167,8 @@ def gait_section(csv_path):
              "|---|---|---|---|---|---|---|---|",
              f"| {len(rows)} | {median:.0f} | {max(solve):.0f} | {(1000.0 / 60.0) / median:.3f} | "
              f"{statistics.median(volume_mean) if volume_mean else float('nan'):.2f} | "
-             f"{max(volume_max) if volume_max else float('nan'):.1f} | {max(penetration):.2f} | "
+             f"{max(volume_max) if volume_max else float('nan'):.1f} | "
+             f"{max(penetration) if penetration else float('nan'):.2f} | "
              f"{max(surface_depth) if surface_depth else float('nan'):.1f} |", "",
              "Target (node issue): median per-frame solve <= 16.7 ms within 2 mm RMS of the converged shape. Not met: "
              "one explicit iteration over the 33 280 particles with collision costs a few milliseconds here, and no "

@@ -192,14 +192,19 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken):
     print(f"real-time factor           {frame_period_ms / statistics.median(solve):.2f} (solve only), "
           f"{frame_period_ms / statistics.median(total):.2f} (with surfaces and metrics); "
           f"1.0 = keeps up with {bag_rate_hz:.0f} Hz")
+    # A figure the node did not measure is flagged and NaN in the stats, never 0: report it as absent, with why.
     if metrics:
         print(f"volume error               mean {statistics.mean(f.volume_error_mean_pct for f in metrics):.2f} %, "
-              f"max {max(f.volume_error_max_pct for f in metrics):.2f} %")
+              f"max {max(f.volume_error_max_pct for f in metrics):.2f} % ({len(metrics)} of {len(frames)} frames)")
         print(f"surface inside bone        max {1000 * max(f.max_surface_inside_bone_m for f in metrics):.2f} mm")
     else:
-        print("volume error               not measured (no surface metrics in the stats)")
-    print(f"max sphere penetration     bone {1000 * max(f.max_penetration_sphere_bone_m for f in frames):.2f} mm, "
-          f"muscle {1000 * max(f.max_penetration_sphere_muscle_m for f in frames):.2f} mm")
+        print(f"volume error               not measured ({last.surface_metrics_absent_reason})")
+    collided = [f for f in frames if f.has_collision_metrics]
+    if collided:
+        print(f"max sphere penetration     bone {1000 * max(f.max_penetration_sphere_bone_m for f in collided):.2f} mm, "
+              f"muscle {1000 * max(f.max_penetration_sphere_muscle_m for f in collided):.2f} mm")
+    else:
+        print(f"max sphere penetration     not measured ({last.collision_absent_reason})")
     print(f"outputs                    {args.out}/stats.csv, {args.out}/rviz.png "
           f"({'taken' if shot_taken else 'MISSING'})")
     ok = finite and last.poses_solved == len(stamps) and last.poses_received == len(stamps)

@@ -3,6 +3,7 @@
 //   generate_fibres --surface muscle.stl [--origin-bone a.stl] [--insertion-bone b.stl] --out fibres.vtk
 //                   [--fibres 64] [--voxel 0.002] [--scale 1] [--points 30] [--attach 0.005] [--min-voxels 50000]
 //   generate_fibres --scene config/scenes/right_hip_thigh.yaml --package-dir . [--muscles a,b|tag] [--report r.json]
+//   (paths in the scene start at its folder; --package-dir resolves package:// URIs)
 //
 // Exit status: 0 = fibres written and every check passed, 1 = bad input or failure (message on stderr),
 // 2 = fibres written but some check failed (listed on stdout).
@@ -40,6 +41,8 @@ const char* const kUsage =
     "                  [options]\n"
     "Surfaces: .stl .ply .vtk .vtp .obj (muscle: closed, 2-manifold). Output: VTK legacy polylines, metres,\n"
     "origin -> insertion. Without bones the origin is the end of the principal axis with greater Z.\n"
+    "Scene mode: relative paths in the scene start at the scene file's folder; --package-dir (default .) is the\n"
+    "package directory that package:// URIs (the URDF's meshes) point into.\n"
     "options:\n"
     "  --fibres N        number of fibres (default 64)\n"
     "  --voxel M         voxel edge in metres (default 0.002; refined for small muscles, see --min-voxels)\n"
@@ -227,8 +230,8 @@ int run(int argc, char** argv) {
   const std::string package = has("--package-dir") ? args["--package-dir"] : ".";
   const Timer total;
   const md::SceneDescription scene = md::loadSceneDescription(args["--scene"]);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene.urdf_file, package));
   const md::UriResolver resolve = md::makeUriResolver({{packageName(package), package}}, package);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene, scene.urdf_file, resolve));
   const std::vector<md::MuscleDescription> muscles =
       md::selectMuscles(scene, has("--muscles") ? splitList(args["--muscles"]) : std::vector<std::string>{});
   std::map<std::string, md::TriangleMesh> bones;
@@ -246,7 +249,7 @@ int run(int argc, char** argv) {
   for (const md::MuscleDescription& m : muscles) {
     const Timer timer;
     const LoadedSurface loaded =
-        loadMuscleSurface(md::resolveScenePath(m.surface_file, package), 1.0, !has("--no-repair"), m.name);
+        loadMuscleSurface(md::resolveScenePath(scene, m.surface_file, resolve), 1.0, !has("--no-repair"), m.name);
     const md::TriangleMesh& surface = loaded.mesh;
     if (loaded.repaired && !scene.repair_surfaces)
       std::cout << m.name << ": set 'repair_surfaces: true' in " << args["--scene"]
@@ -257,7 +260,7 @@ int run(int argc, char** argv) {
     } catch (const md::FibreGenerationError& e) {
       throw md::FibreGenerationError("muscle '" + m.name + "': " + e.what());
     }
-    const std::string out = md::resolveScenePath(m.fibre_file, package);
+    const std::string out = md::resolveScenePath(scene, m.fibre_file, resolve);
     if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
     md::saveFibresVtk(out, result.fibres, decimals);
     printResult(m.name + " -> " + m.fibre_file, result, timer.seconds());

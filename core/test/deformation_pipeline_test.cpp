@@ -103,14 +103,75 @@ TEST(DeformationPipeline, SurfacesAndMetricsTurnedOffBySettingsSaySo) {
   settings.skin_surfaces = false;
   settings.measure_fidelity = false;
   DeformationPipeline pipeline = twoMusclePipeline(settings);
-  EXPECT_EQ(pipeline.skinningProblem(), "surface skinning disabled by the settings");
-  EXPECT_EQ(pipeline.metricsProblem(), "fidelity metrics disabled by the settings");
+  EXPECT_EQ(pipeline.skinningProblem(), "turned off (surfaces and surface_metrics are false)");
+  EXPECT_EQ(pipeline.metricsProblem(), "turned off (surface_metrics is false)");
   const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
   EXPECT_FALSE(frame.has_surfaces);
   EXPECT_FALSE(frame.has_metrics);
   const std::string description = pipeline.describe();
   EXPECT_NE(description.find("2 muscles, 3 bones"), std::string::npos) << description;
   EXPECT_NE(description.find("solver verlet"), std::string::npos) << description;
+}
+
+TEST(DeformationPipeline, FiguresTurnedOffBySettingsAreListedWithTheSettingThatTurnsThemOn) {
+  PipelineSettings settings = smallSettings();  // the Verlet solver: no force residual
+  settings.simulation.collisions = false;
+  settings.measure_fidelity = false;
+  DeformationPipeline pipeline = twoMusclePipeline(settings);
+  const std::vector<AbsentMetric> absent = pipeline.absentMetrics();
+  ASSERT_EQ(absent.size(), 3u);
+  EXPECT_EQ(absent[0].figures, "force_residual");
+  EXPECT_EQ(absent[0].remedy, "set solver: block_descent");
+  EXPECT_NE(absent[1].figures.find("contacts"), std::string::npos);
+  EXPECT_EQ(absent[1].remedy, "set collisions: true");
+  EXPECT_NE(absent[2].figures.find("volume_error"), std::string::npos);
+  EXPECT_EQ(absent[2].reason, "turned off (surface_metrics is false)");
+  EXPECT_EQ(absent[2].remedy, "set surface_metrics: true");
+  for (const AbsentMetric& a : absent) EXPECT_TRUE(a.turned_off) << a.describe();
+
+  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_LT(frame.solve.solve.residual, 0);
+  EXPECT_NE(frame.residual_absent_reason.find("verlet solver does not measure it"), std::string::npos);
+  EXPECT_FALSE(frame.solve.has_collision);
+  EXPECT_EQ(frame.collision_absent_reason, "collisions are off");
+  EXPECT_FALSE(frame.has_metrics);
+  EXPECT_EQ(frame.metrics_absent_reason, "turned off (surface_metrics is false)");
+}
+
+TEST(DeformationPipeline, ADefectiveBoneTurnsTheSurfaceMetricsOffWithAReasonNamingItAndAWayToTurnThemOn) {
+  SyntheticScene scene = makeSyntheticThigh(2, 4);
+  TriangleMesh& femur = scene.bones[1].surface;
+  femur.triangles.conservativeResize(Eigen::NoChange, femur.triangleCount() - 1);  // a hole
+  PipelineSettings settings = smallSettings();
+  settings.simulation.solver_kind = SolverKind::block_descent;
+  DeformationPipeline pipeline = twoMusclePipeline(settings, scene);
+  EXPECT_NE(pipeline.skinning(), nullptr);  // the muscles are fine: surfaces still work
+  EXPECT_EQ(pipeline.metrics(), nullptr);
+  const std::vector<AbsentMetric> absent = pipeline.absentMetrics();
+  ASSERT_EQ(absent.size(), 1u);
+  EXPECT_FALSE(absent[0].turned_off);
+  EXPECT_NE(absent[0].reason.find("bone '" + scene.bones[1].name + "'"), std::string::npos) << absent[0].reason;
+  EXPECT_NE(absent[0].remedy.find("closed surface"), std::string::npos) << absent[0].remedy;
+
+  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_TRUE(frame.has_surfaces);
+  EXPECT_FALSE(frame.has_metrics);
+  EXPECT_EQ(frame.metrics_absent_reason, absent[0].reason);
+  EXPECT_GE(frame.solve.solve.residual, 0);
+  EXPECT_EQ(frame.residual_absent_reason, "");
+  EXPECT_TRUE(frame.solve.has_collision);
+  EXPECT_EQ(frame.collision_absent_reason, "");
+}
+
+TEST(DeformationPipeline, MetricsNotAskedForInASolveSaySo) {
+  DeformationPipeline pipeline = twoMusclePipeline(smallSettings());
+  ASSERT_NE(pipeline.metrics(), nullptr);
+  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, false);
+  EXPECT_FALSE(frame.has_metrics);
+  EXPECT_EQ(frame.metrics_absent_reason, "not asked for in this solve");
+  const PipelineFrame& measured = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::warm, false, true);
+  EXPECT_TRUE(measured.has_metrics);
+  EXPECT_EQ(measured.metrics_absent_reason, "");
 }
 
 TEST(DeformationPipeline, AFrameFromBoneTransformsIsTheFrameFromThePose) {

@@ -260,7 +260,7 @@ TEST(FibreGenerator, ChecksCatchFibresOutsideOffThePatchesAndTouching) {
 TEST(FibreGenerator, EveryCommittedFibreFilePassesTheChecks) {
   const std::string package = MD_PACKAGE_DIR;
   const md::SceneDescription scene = md::loadSceneDescription(package + "/config/scenes/right_hip_thigh.yaml");
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene.urdf_file, package));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene, scene.urdf_file));
   std::map<std::string, md::TriangleMesh> bones;
   for (md::Bone& bone : md::loadBones(skeleton, md::makeUriResolver({{"muscle_deformation", package}}, package),
                                       scene.frame)) {
@@ -269,8 +269,8 @@ TEST(FibreGenerator, EveryCommittedFibreFilePassesTheChecks) {
   const md::FibreGeneratorOptions options;  // the defaults generate_fibres used
   for (const md::MuscleDescription& m : scene.muscles) {
     SCOPED_TRACE(m.name);
-    const md::TriangleMesh surface = md::loadClosedSurface(md::resolveScenePath(m.surface_file, package));
-    const std::vector<md::Polyline> fibres = md::loadPolylines(md::resolveScenePath(m.fibre_file, package));
+    const md::TriangleMesh surface = md::loadClosedSurface(md::resolveScenePath(scene, m.surface_file));
+    const std::vector<md::Polyline> fibres = md::loadPolylines(md::resolveScenePath(scene, m.fibre_file));
     EXPECT_EQ(fibres.size(), 64u);
     const auto origin = bones.find(m.origin_bone), insertion = bones.find(m.insertion_bone);
     const md::AttachmentPatches patches =

@@ -3,11 +3,20 @@
 #include "muscle_deformation/core/collision/point_index.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstdio>
 #include <set>
+
+#ifndef MD_PACKAGE_DIR
+#define MD_PACKAGE_DIR "."
+#endif
 
 using namespace muscle_deformation;
 
@@ -84,6 +93,116 @@ TEST(ModelBuilder, ParticlesCloseToABoneAreFixedToIt) {
     }
   }
   EXPECT_GT(attached_to_rod, 0);
+}
+
+TEST(ModelBuilder, NoParticleIsFixedToABoneThatIsNeitherTheMusclesOriginNorInsertion) {
+  SmallScene scene = spindleBetweenPlates();
+  // The same rod through the muscle as above, but the muscle is attached to the plates only: near the rod its
+  // particles stay free.
+  scene.bones.push_back({2, "rod", makeCylinderMesh({0.0, 0.0, 0.05}, {0.0, 0.0, 0.15}, 0.001, 12, 4)});
+  scene.muscles[0].origin_bone = "lower";
+  scene.muscles[0].insertion_bone = "upper";
+  ModelSettings settings = smallSettings();
+  settings.attachment_distance_m = 0.004;
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
+  int near_rod = 0;
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (system.is_fixed[i]) EXPECT_NE(system.fixed_bone[i], 2) << "particle " << i << " fixed to the rod";
+    const Eigen::Vector3d p = system.rest_position.col(i);
+    if (p.z() > 0.05 && p.z() < 0.15 && std::hypot(p.x(), p.y()) < 0.001 * std::cos(M_PI / 12) + 0.004) {
+      EXPECT_FALSE(system.is_fixed[i]) << i;
+      ++near_rod;
+    }
+  }
+  EXPECT_GT(near_rod, 0);
+  ASSERT_EQ(report.muscles.size(), 1u);
+  EXPECT_EQ(report.muscles[0].fixed_by_bone.count("rod"), 0u);
+  EXPECT_EQ(report.muscles[0].fixed_by_bone.at("lower") + report.muscles[0].fixed_by_bone.at("upper"),
+            report.muscles[0].fixed_particles);
+}
+
+TEST(ModelBuilder, FibreStartsAreFixedToTheOriginAndEndsToTheInsertionAndAReversedMuscleIsWarnedAbout) {
+  SmallScene scene = spindleBetweenPlates();
+  ModelSettings settings = smallSettings();
+  settings.attachment_distance_m = 0;  // only the fibre ends are fixed
+  scene.muscles[0].origin_bone = "upper";  // the fibres start at the lower plate: named the wrong way round
+  scene.muscles[0].insertion_bone = "lower";
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (system.sample_of[i] == 0) EXPECT_EQ(system.fixed_bone[i], 1) << i;
+    if (system.sample_of[i] == 9) EXPECT_EQ(system.fixed_bone[i], 0) << i;
+  }
+  ASSERT_EQ(report.warnings.size(), 1u);
+  EXPECT_CONTAINS(report.warnings[0], "muscle 'spindle': 16 of 16 fibres start nearer its insertion bone 'lower'");
+  EXPECT_CONTAINS(report.warnings[0], "swapped");
+
+  std::swap(scene.muscles[0].origin_bone, scene.muscles[0].insertion_bone);
+  buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
+  EXPECT_TRUE(report.warnings.empty()) << report.warnings[0];
+}
+
+TEST(ModelBuilder, AnAttachmentBoneThatIsNotABoneIsAnErrorNamingMuscleAndBone) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles[0].origin_bone = "lower";
+  scene.muscles[0].insertion_bone = "kneecap";
+  const std::string message =
+      muscle_deformation::testing::errorMessageOf<ModelError>([&] { buildMassSpringSystem(scene.muscles, scene.bones, smallSettings()); });
+  EXPECT_CONTAINS(message, "muscle 'spindle'");
+  EXPECT_CONTAINS(message, "insertion bone 'kneecap'");
+  EXPECT_CONTAINS(message, "'lower', 'upper'");
+}
+
+TEST(ModelBuilder, AMuscleFixedToTwoBonesAFewMillimetresApartIsWarnedAboutNamingMuscleAndBones) {
+  // A muscle across a joint: its fibres start on two bones side by side, 2 mm apart (a hip joint's pelvis and femur).
+  SmallScene scene;
+  scene.muscles.push_back(makeSpindleMuscle("iliacus", {0, 0, 0}, {0, 0, 0.2}, 0.02, 1.0, 4, 30));
+  scene.bones.push_back({0, "pelvis", makeBoxMesh({-0.05, -0.05, -0.03}, {-0.001, 0.05, -0.001})});
+  scene.bones.push_back({1, "femur", makeBoxMesh({0.001, -0.05, -0.03}, {0.05, 0.05, -0.001})});
+  scene.bones.push_back({2, "tibia", makeBoxMesh({-0.05, -0.05, 0.201}, {0.05, 0.05, 0.23})});
+  scene.muscles[0].origin_bone = "pelvis";
+  scene.muscles[0].insertion_bone = "femur";
+  ModelBuildReport report;
+  buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  ASSERT_EQ(report.muscles.size(), 1u);
+  EXPECT_LT(report.muscles[0].closest_attachments_m, kCloseAttachmentsWarningM);
+  std::string warnings;
+  for (const std::string& warning : report.warnings) warnings += warning + "\n";
+  EXPECT_CONTAINS(warnings, "muscle 'iliacus': particles fixed to 'pelvis' and to 'femur' are ");
+  EXPECT_CONTAINS(warnings, "mm apart at rest");
+
+  // Attached at both ends of the muscle instead, 20 cm apart: nothing to say.
+  scene.muscles[0].insertion_bone = "tibia";
+  buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  EXPECT_GT(report.muscles[0].closest_attachments_m, 0.15);
+  EXPECT_TRUE(report.warnings.empty()) << report.warnings[0];
+}
+
+TEST(ModelBuilder, NoParticleOfTheBundledSceneIsFixedToABoneOtherThanItsMusclesOriginOrInsertion) {
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {});
+  ASSERT_EQ(bundled.scene.muscles.size(), 26u);
+  ModelBuildReport report;
+  const MassSpringSystem system =
+      buildMassSpringSystem(bundled.scene.muscles, bundled.scene.bones, ModelSettings{}, &report);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (!system.is_fixed[i]) continue;
+    const Muscle& muscle = bundled.scene.muscles[static_cast<std::size_t>(system.muscle_of[i])];
+    const std::string& bone = bundled.scene.bones[static_cast<std::size_t>(system.fixed_bone[i])].name;
+    EXPECT_TRUE(bone == muscle.origin_bone || bone == muscle.insertion_bone)
+        << "particle " << i << " of " << muscle.name << " fixed to " << bone;
+  }
+  // Every muscle holds on to both of its bones, and none is fixed by the fibres' direction the wrong way round.
+  for (const MuscleBuildSummary& summary : report.muscles) {
+    const Muscle& muscle = *std::find_if(bundled.scene.muscles.begin(), bundled.scene.muscles.end(),
+                                         [&](const Muscle& m) { return m.name == summary.name; });
+    EXPECT_GT(summary.fixed_by_bone.count(muscle.origin_bone), 0u) << summary.name;
+    EXPECT_GT(summary.fixed_by_bone.count(muscle.insertion_bone), 0u) << summary.name;
+  }
+  for (const std::string& warning : report.warnings) {
+    EXPECT_EQ(warning.find("fibres start nearer"), std::string::npos) << warning;
+    std::printf("bundled scene: %s\n", warning.c_str());
+  }
 }
 
 TEST(ModelBuilder, OuterFibresAreBoundaryAndCentralFibresAreNot) {

@@ -147,6 +147,14 @@ TEST(Skeleton, MalformedUrdfNamesItsSource) {
   EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([] { md::Skeleton::fromUrdfFile("/nonexistent/robot.urdf"); }), "/nonexistent/robot.urdf");
 }
 
+TEST(Skeleton, LinkDifferencesNameTheLinksOnlyOneSkeletonHasAndItsSource) {
+  const md::Skeleton arm = md::Skeleton::fromUrdfString(kArmUrdf, "arm.urdf");
+  const md::Skeleton slider = md::Skeleton::fromUrdfString(kSliderUrdf, "robot_description");
+  EXPECT_EQ(md::describeLinkDifferences(arm, md::Skeleton::fromUrdfString(kArmUrdf, "again")), "");
+  EXPECT_EQ(md::describeLinkDifferences(arm, slider),
+            "only arm.urdf has 'hand', 'upper'; only robot_description has 'carriage', 'wheel'");
+}
+
 TEST(Skeleton, BundledUrdfParsesWithJointsInDocumentOrder) {
   const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kBundledUrdf);
   EXPECT_EQ(skeleton.rootLink(), "world");
@@ -195,10 +203,10 @@ TEST(Scene, UriResolverHandlesPackageFileAndRelativeUris) {
 
 TEST(Scene, BundledSceneDescriptionHasTwentySixMusclesOnUrdfLinks) {
   const md::SceneDescription scene = md::loadSceneDescription(kBundledScene);
-  EXPECT_EQ(scene.urdf_file, "urdf/right_hip_thigh.urdf");
+  EXPECT_EQ(scene.urdf_file, "../../urdf/right_hip_thigh.urdf");  // relative to the scene file's folder
   EXPECT_EQ(scene.frame, "pelvis");
   ASSERT_EQ(scene.muscles.size(), 26u);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(scene, scene.urdf_file));
   for (const auto& m : scene.muscles) {
     EXPECT_NE(skeleton.link(m.origin_bone), nullptr) << m.name;
     EXPECT_NE(skeleton.link(m.insertion_bone), nullptr) << m.name;
@@ -267,7 +275,7 @@ TEST(Scene, SelectionTakesNamesAndTagsInSceneOrderAndNamesUnknownEntries) {
 TEST(Scene, EveryBundledMuscleSurfaceIsClosedAndTwoManifold) {
   const md::SceneDescription scene = md::loadSceneDescription(kBundledScene);
   for (const auto& m : scene.muscles) {
-    const md::TriangleMesh surface = md::loadTriangleMesh(md::resolveScenePath(m.surface_file, kPackage));
+    const md::TriangleMesh surface = md::loadTriangleMesh(md::resolveScenePath(scene, m.surface_file));
     const md::SurfaceTopologyReport report = md::checkSurfaceTopology(surface);
     EXPECT_TRUE(report.closedManifold()) << m.name << ": " << report.describe();
     EXPECT_GT(md::enclosedVolume(surface), 0.0) << m.name << " is wound inwards";
@@ -276,9 +284,9 @@ TEST(Scene, EveryBundledMuscleSurfaceIsClosedAndTwoManifold) {
 
 TEST(Scene, BundledSceneLoadsWithBonesFibresAndRestPoses) {
   const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
-  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {"sartorius", "piriformis"});
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, {"sartorius", "piriformis"});
   ASSERT_EQ(scene.muscles.size(), 2u);
   EXPECT_EQ(scene.muscles[0].name, "sartorius");
   EXPECT_EQ(scene.muscle_descriptions[1].name, "piriformis");
@@ -308,22 +316,113 @@ TEST(Scene, BundledSceneLoadsWithBonesFibresAndRestPoses) {
 
 TEST(Scene, UnknownBoneOrMissingFibreFileIsASceneError) {
   md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   description.muscles[0].insertion_bone = "kneecap";
-  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
-                  "bone 'kneecap'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, {description.muscles[0].name}); }),
+                  "no link 'kneecap'");
   description = md::loadSceneDescription(kBundledScene);
   description.muscles[0].fibre_file = "data/fibres/none.vtk";
-  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name}); }),
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, {description.muscles[0].name}); }),
                   "generate_fibres");
   description.frame = "thorax";
-  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve, kPackage); }), "'thorax'");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadScene(description, skeleton, resolve); }), "'thorax'");
+}
+
+TEST(Scene, RelativePathsStartAtTheSceneFilesFolderWhereverItIsAndWhateverTheWorkingDirectory) {
+  // A scene directory of the user's own, outside any package: meshes/ and fibres/ next to scene.yaml, the URDF one
+  // level up. The URDF's meshes stay package:// URIs of the bundled package.
+  const fs::path root = fs::temp_directory_path() / "md_scene_test_own_anatomy";
+  const fs::path folder = root / "hip";
+  fs::remove_all(root);
+  fs::create_directories(folder / "meshes");
+  fs::create_directories(folder / "fibres");
+  fs::copy_file(kPackage + "/data/meshes/muscles/sartorius.stl", folder / "meshes" / "sartorius.stl");
+  fs::copy_file(kPackage + "/data/fibres/sartorius.vtk", folder / "fibres" / "sartorius.vtk");
+  fs::copy_file(kBundledUrdf, root / "skeleton.urdf");
+  std::ofstream(folder / "scene.yaml") << "urdf: ../skeleton.urdf\nframe: pelvis\nmuscles:\n"
+                                          "- {name: sartorius, surface: meshes/sartorius.stl, fibres: fibres/sartorius.vtk,\n"
+                                          "   origin_bone: pelvis, insertion_bone: tibia_r}\n";
+
+  const fs::path working_directory = fs::current_path();
+  fs::current_path(root);  // the scene named by a path relative to the working directory
+  md::SceneDescription description;
+  std::string urdf;
+  try {
+    description = md::loadSceneDescription("hip/scene.yaml");
+    urdf = md::resolveScenePath(description, description.urdf_file);
+  } catch (...) {
+    fs::current_path(working_directory);
+    throw;
+  }
+  fs::current_path("/");  // and loaded from anywhere else
+  EXPECT_TRUE(fs::equivalent(description.folder, folder)) << description.folder;
+  EXPECT_TRUE(fs::equivalent(urdf, root / "skeleton.urdf")) << urdf;
+  // Not the package root, not the working directory: the scene's folder.
+  EXPECT_EQ(md::resolveScenePath(description, "data/fibres/a.vtk"), (folder / "data/fibres/a.vtk").string());
+  EXPECT_EQ(md::resolveScenePath(description, "/abs/a.vtk"), "/abs/a.vtk");
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  md::Scene scene;
+  try {
+    scene = md::loadScene(description, md::Skeleton::fromUrdfFile(urdf), resolve);
+  } catch (...) {
+    fs::current_path(working_directory);
+    throw;
+  }
+  fs::current_path(working_directory);
+  ASSERT_EQ(scene.muscles.size(), 1u);
+  EXPECT_EQ(scene.muscles[0].fibres.size(), 64u);
+  EXPECT_EQ(scene.muscles[0].origin_bone, "pelvis");
+  EXPECT_EQ(scene.muscles[0].insertion_bone, "tibia_r");
+
+  // A path that is not there is named as resolved, with the scene file and the muscle.
+  description.muscles[0].surface_file = "meshes/gone.stl";
+  const std::string message =
+      md::testing::errorMessageOf<md::LoadError>([&] { md::loadScene(description, md::Skeleton::fromUrdfFile(urdf), resolve); });
+  EXPECT_CONTAINS(message, (folder / "meshes/gone.stl").string());
+  // A URI without a resolver to turn it into a path is refused, naming the scene.
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>(
+                      [&] { md::resolveScenePath(description, "package://muscle_deformation/x.stl"); }),
+                  description.path);
+  fs::remove_all(root);
+}
+
+namespace {
+
+// The bundled URDF without the patella: its link and the fixed joint that holds it.
+std::string bundledUrdfWithoutPatella() {
+  std::ifstream file(kBundledUrdf);
+  const std::string xml((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  const std::regex patella("<joint name=\"patella_r_fixed\"[\\s\\S]*?</joint>|<link name=\"patella_r\">[\\s\\S]*?</link>");
+  return std::regex_replace(xml, patella, "");
+}
+
+}  // namespace
+
+TEST(Scene, EveryLinkTheSceneNamesThatTheUrdfLacksIsListedBeforeAnythingLoads) {
+  md::SceneDescription description = md::loadSceneDescription(kBundledScene);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfString(bundledUrdfWithoutPatella(), "/robot_description");
+  ASSERT_EQ(skeleton.link("patella_r"), nullptr);
+  EXPECT_EQ(md::linksMissingFrom(description, skeleton), std::vector<std::string>{"patella_r"});
+  EXPECT_TRUE(md::linksMissingFrom(description, md::Skeleton::fromUrdfFile(kBundledUrdf)).empty());
+
+  description.frame = "thorax";
+  description.muscles[3].origin_bone = "femur_l";
+  EXPECT_EQ(md::linksMissingFrom(description, skeleton), (std::vector<std::string>{"thorax", "patella_r", "femur_l"}));
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+  // Even a selection of muscles on bones the URDF has: the scene and the skeleton do not fit.
+  const std::string message = md::testing::errorMessageOf<md::SceneError>(
+      [&] { md::loadScene(description, skeleton, resolve, {"sartorius"}); });
+  EXPECT_CONTAINS(message, "/robot_description");
+  EXPECT_CONTAINS(message, "has no links 'thorax', 'patella_r', 'femur_l'");
+  EXPECT_CONTAINS(message, "the scene frame is 'thorax'");
+  EXPECT_CONTAINS(message, "muscle '" + description.muscles[3].name + "' names 'femur_l'");
+  EXPECT_CONTAINS(message, "more");  // the quadriceps all name the patella: a few listed, the rest counted
 }
 
 TEST(Scene, PoseFromLinkPosesMovesBonesRelativeToRest) {
   const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   md::Scene scene;
   scene.skeleton = skeleton;
   scene.rest_link_poses = skeleton.linkPoses({});
@@ -361,7 +460,7 @@ TEST(Scene, AUrdfWithoutCollisionMeshesIsRefusedForHavingNoBones) {
   const md::Skeleton skeleton = md::Skeleton::fromUrdfString(bundledUrdfWithoutCollisions(), "robot_description");
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] {
-                    md::loadScene(description, skeleton, resolve, kPackage, {description.muscles[0].name});
+                    md::loadScene(description, skeleton, resolve, {description.muscles[0].name});
                   }),
                   "no link with a <collision> mesh");
 }
@@ -373,7 +472,7 @@ TEST(Scene, AMuscleOnALinkWithoutCollisionMeshIsRefusedNamingBoth) {
   const md::MuscleDescription& muscle = description.muscles[0];
   ASSERT_EQ(muscle.origin_bone, "pelvis");
   const std::string message = md::testing::errorMessageOf<md::SceneError>(
-      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+      [&] { md::loadScene(description, skeleton, resolve, {muscle.name}); });
   EXPECT_CONTAINS(message, "'pelvis'");
   EXPECT_CONTAINS(message, "no <collision> mesh");
   EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
@@ -381,18 +480,18 @@ TEST(Scene, AMuscleOnALinkWithoutCollisionMeshIsRefusedNamingBoth) {
 
 TEST(Scene, PackageUrisInTheSceneFileResolveLikeTheUrdfsAndNameTheMuscleWhenTheyDoNot) {
   md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   md::MuscleDescription& muscle = description.muscles[0];
-  muscle.surface_file = "package://muscle_deformation/" + muscle.surface_file;
-  muscle.fibre_file = "package://muscle_deformation/" + muscle.fibre_file;
-  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {muscle.name});
+  muscle.surface_file = "package://muscle_deformation/data/meshes/muscles/" + muscle.name + ".stl";
+  muscle.fibre_file = "package://muscle_deformation/data/fibres/" + muscle.name + ".vtk";
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, {muscle.name});
   ASSERT_EQ(scene.muscles.size(), 1u);
   EXPECT_GT(scene.muscles[0].fibres.size(), 0u);
 
   muscle.surface_file = "package://other_pkg/surface.stl";
   const std::string message = md::testing::errorMessageOf<md::SceneError>(
-      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+      [&] { md::loadScene(description, skeleton, resolve, {muscle.name}); });
   EXPECT_CONTAINS(message, "unknown package 'other_pkg'");
   EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
   EXPECT_EQ(message.find(kPackage + "/package:"), std::string::npos) << "no path glued from the package root and a URI";
@@ -419,9 +518,9 @@ TEST(Scene, FibreExcursionIsTheDeepestFibrePointOutsideTheSurface) {
 
 TEST(Scene, EveryBundledMusclesFibresStayWithinTheToleranceOfItsSurface) {
   const md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
-  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage);  // refuses a fibre further out
+  const md::Scene scene = md::loadScene(description, skeleton, resolve);  // refuses a fibre further out
   double worst = 0;
   for (const md::Muscle& muscle : scene.muscles) worst = std::max(worst, md::fibreExcursion(muscle).max_outside_m);
   EXPECT_LE(worst, md::kFibreOutsideToleranceM);
@@ -430,17 +529,17 @@ TEST(Scene, EveryBundledMusclesFibresStayWithinTheToleranceOfItsSurface) {
 
 TEST(Scene, FibresFarOutsideTheirMuscleAreRefusedNamingMuscleFibreDistanceAndTolerance) {
   md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   md::MuscleDescription& muscle = description.muscles[0];
   // The muscle's own fibres shifted 5 cm: a fibre file in the wrong frame.
-  std::vector<md::Polyline> fibres = md::loadPolylines(md::resolveScenePath(muscle.fibre_file, kPackage));
+  std::vector<md::Polyline> fibres = md::loadPolylines(md::resolveScenePath(description, muscle.fibre_file));
   for (md::Polyline& fibre : fibres) fibre.row(0).array() += 0.05;
   const std::string shifted = (fs::temp_directory_path() / "md_scene_test_shifted_fibres.vtk").string();
   md::savePolylinesVtk(shifted, fibres);
   muscle.fibre_file = shifted;
   const std::string message = md::testing::errorMessageOf<md::SceneError>(
-      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+      [&] { md::loadScene(description, skeleton, resolve, {muscle.name}); });
   EXPECT_CONTAINS(message, "muscle '" + muscle.name + "'");
   EXPECT_CONTAINS(message, "mm outside the muscle's surface");
   EXPECT_CONTAINS(message, "at most 5 mm outside");
@@ -448,10 +547,10 @@ TEST(Scene, FibresFarOutsideTheirMuscleAreRefusedNamingMuscleFibreDistanceAndTol
 
 TEST(Scene, AMuscleSurfaceWithAHoleIsRefusedPointingAtTheRepairAndRepairedWhenTheSceneAsks) {
   md::SceneDescription description = md::loadSceneDescription(kBundledScene);
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description.urdf_file, kPackage));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(md::resolveScenePath(description, description.urdf_file));
   const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
   md::MuscleDescription& muscle = description.muscles[0];
-  const md::TriangleMesh intact = md::loadClosedSurface(md::resolveScenePath(muscle.surface_file, kPackage));
+  const md::TriangleMesh intact = md::loadClosedSurface(md::resolveScenePath(description, muscle.surface_file));
   md::TriangleMesh holed = intact;
   holed.triangles = intact.triangles.leftCols(intact.triangleCount() - 1);  // one triangle missing, as segmenters do
   const std::string path = (fs::temp_directory_path() / "md_scene_test_holed_muscle.stl").string();
@@ -459,13 +558,13 @@ TEST(Scene, AMuscleSurfaceWithAHoleIsRefusedPointingAtTheRepairAndRepairedWhenTh
   muscle.surface_file = path;
 
   const std::string refusal = md::testing::errorMessageOf<md::LoadError>(
-      [&] { md::loadScene(description, skeleton, resolve, kPackage, {muscle.name}); });
+      [&] { md::loadScene(description, skeleton, resolve, {muscle.name}); });
   EXPECT_CONTAINS(refusal, path);
   EXPECT_CONTAINS(refusal, "3 boundary edges");
   EXPECT_CONTAINS(refusal, "repair_surfaces: true");
 
   description.repair_surfaces = true;
-  const md::Scene scene = md::loadScene(description, skeleton, resolve, kPackage, {muscle.name});
+  const md::Scene scene = md::loadScene(description, skeleton, resolve, {muscle.name});
   ASSERT_EQ(scene.repairs.size(), 1u);
   EXPECT_CONTAINS(scene.repairs[0], "muscle '" + muscle.name + "'");
   EXPECT_CONTAINS(scene.repairs[0], "triangles added to close holes: 1");

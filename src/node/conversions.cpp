@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <set>
 
 // A particle as a PCL point: position plus the fields rviz can colour by.
@@ -243,8 +244,11 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   const SolveStats& solve = frame.solve.solve;
   stats.iterations = solve.iterations;
   stats.converged = solve.converged;
+  constexpr double kAbsent = std::numeric_limits<double>::quiet_NaN();
   stats.has_residual = solve.residual >= 0;
-  stats.force_residual = stats.has_residual ? solve.residual : 0.0;
+  stats.force_residual = stats.has_residual ? solve.residual : kAbsent;
+  if (!stats.has_residual)
+    stats.residual_absent_reason = frame.residual_absent_reason.empty() ? "not measured" : frame.residual_absent_reason;
   stats.time_limit_reached = solve.time_limit_reached;
   stats.warm_started = frame.solve.warm_started;
   stats.finite = frame.solve.finite;
@@ -262,9 +266,17 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   stats.max_strain = solve.max_strain;
   stats.strain_p99 = solve.strain_p99;
   const CollisionStats& collision = frame.solve.collision;
-  stats.contacts = collision.contacts;
-  stats.max_penetration_sphere_bone_m = collision.max_penetration_muscle_bone_m;
-  stats.max_penetration_sphere_muscle_m = collision.max_penetration_muscle_muscle_m;
+  stats.has_collision_metrics = frame.solve.has_collision;
+  if (stats.has_collision_metrics) {
+    stats.contacts = collision.contacts;
+    stats.max_penetration_sphere_bone_m = collision.max_penetration_muscle_bone_m;
+    stats.max_penetration_sphere_muscle_m = collision.max_penetration_muscle_muscle_m;
+  } else {
+    stats.collision_absent_reason =
+        frame.collision_absent_reason.empty() ? "not measured" : frame.collision_absent_reason;
+    stats.contacts = -1;
+    stats.max_penetration_sphere_bone_m = stats.max_penetration_sphere_muscle_m = kAbsent;
+  }
   stats.has_surface_metrics = frame.has_metrics;
   if (frame.has_metrics) {
     const SceneMetrics& metrics = frame.metrics;
@@ -279,8 +291,22 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
     }
     stats.surface_vertices_inside_bone = metrics.vertices_inside_bone;
     stats.max_surface_inside_bone_m = metrics.max_inside_bone_depth_m;
+  } else {
+    stats.surface_metrics_absent_reason =
+        frame.metrics_absent_reason.empty() ? "not measured" : frame.metrics_absent_reason;
+    stats.volume_error_mean_pct = stats.volume_error_max_pct = kAbsent;
+    stats.surface_vertices_inside_bone = -1;
+    stats.max_surface_inside_bone_m = kAbsent;
   }
   return stats;
+}
+
+std::vector<AbsentMetric> absentStatsFigures(const DeformationPipeline& stream, bool stats_metrics) {
+  std::vector<AbsentMetric> absent = stream.absentMetrics();
+  if (stream.metrics() && !stats_metrics)
+    absent.push_back({"volume_error_*, surface_vertices_inside_bone, max_surface_inside_bone_m",
+                      "stats_metrics is false", "set stats_metrics: true", true});
+  return absent;
 }
 
 }  // namespace muscle_deformation::node

@@ -38,6 +38,23 @@ UriResolver rosUriResolver(const std::string& package_root) {
   };
 }
 
+// robot_description is what the node runs on; a scene made for another skeleton usually still names links that
+// robot_description has, so compare the link sets with the scene's own `urdf:` file and say how they differ.
+void warnIfTheSceneWasMadeForAnotherSkeleton(const SceneDescription& scene, const Skeleton& robot_description,
+                                             const UriResolver& resolve) {
+  try {
+    const Skeleton scene_skeleton = Skeleton::fromUrdfFile(resolveScenePath(scene, scene.urdf_file, resolve));
+    const std::string differences = describeLinkDifferences(scene_skeleton, robot_description);
+    if (!differences.empty())
+      ROS_WARN_STREAM("muscle_deformation: the scene " << scene.path << " was made for another skeleton than "
+                                                       << robot_description.source() << " (" << differences
+                                                       << "); the node uses " << robot_description.source());
+  } catch (const std::exception& e) {
+    ROS_WARN_STREAM("muscle_deformation: cannot compare " << robot_description.source()
+                                                          << " with the scene's urdf: " << e.what());
+  }
+}
+
 double median(std::vector<double> values) {
   if (values.empty()) return 0;
   const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
@@ -72,9 +89,11 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
                              " is not set or empty: load the skeleton URDF into it (see launch/deform_service.launch)");
   }
   try {
-    const Skeleton skeleton = Skeleton::fromUrdfString(urdf, "robot_description");
+    const Skeleton skeleton = Skeleton::fromUrdfString(urdf, node_.resolveName("robot_description"));
     scene_description_ = loadSceneDescription(settings_.scene_path);
-    scene_ = loadScene(scene_description_, skeleton, rosUriResolver(package_root), package_root, settings_.muscles);
+    warnIfTheSceneWasMadeForAnotherSkeleton(scene_description_, skeleton, rosUriResolver(package_root));
+    // Fails naming every link the scene needs that robot_description lacks.
+    scene_ = loadScene(scene_description_, skeleton, rosUriResolver(package_root), settings_.muscles);
     if (scene_.muscles.empty()) throw std::runtime_error("the scene selects no muscle");
     stream_ = std::make_unique<DeformationPipeline>(scene_.muscle_descriptions, scene_.muscles, scene_.bones,
                                                     settings_.pipeline);
@@ -93,8 +112,13 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   for (const std::string& warning : stream_->simulation().buildReport().warnings)
     ROS_WARN_STREAM("muscle_deformation: " << warning);
   if (!stream_->skinning()) ROS_WARN_STREAM("muscle_deformation: ~surfaces disabled: " << stream_->skinningProblem());
-  if (!stream_->metrics() && settings_.pipeline.measure_fidelity)
-    ROS_WARN_STREAM("muscle_deformation: surface fidelity metrics disabled: " << stream_->metricsProblem());
+  // A figure a setting turned off is information; one that something broken keeps from being measured is a warning.
+  for (const AbsentMetric& absent : absentStatsFigures(*stream_, settings_.stream.stats_metrics)) {
+    if (absent.turned_off)
+      ROS_INFO_STREAM("muscle_deformation: ~stats without " << absent.describe());
+    else
+      ROS_WARN_STREAM("muscle_deformation: ~stats without " << absent.describe());
+  }
 
   fibres_pub_ = private_node_.advertise<visualization_msgs::MarkerArray>("fibres", 1);
   particles_pub_ = private_node_.advertise<sensor_msgs::PointCloud2>("particles", 1);
@@ -363,6 +387,8 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   }
   if (want_stats) {
     muscle_deformation::DeformationStats stats = statsToMessage(frame, header);
+    if (!stats.has_surface_metrics && stream_->metrics() && !settings_.stream.stats_metrics)
+      stats.surface_metrics_absent_reason = "stats_metrics is false";
     stats.poses_received = counters.received;
     stats.poses_solved = counters.solved;
     stats.poses_dropped = counters.dropped;

@@ -2,10 +2,14 @@
 """The node, started with a broken parameter, must exit non-zero and say which parameter and why (rostest gives
 the master; the node binary runs as a subprocess so its exit code and output can be checked)."""
 
+import os
+import re
 import subprocess
+import tempfile
 import unittest
 
 import rosunit
+import rospkg
 from catkin.find_in_workspaces import find_in_workspaces
 
 PACKAGE = "muscle_deformation"
@@ -53,6 +57,28 @@ class BadParameters(unittest.TestCase):
         self.assertNotEqual(code, 0)
         self.assertIn("reset_translation_m no longer exists", output)
         self.assertIn("max_bone_speed_m_per_s", output)
+
+    def test_links_the_scene_needs_that_robot_description_lacks_are_all_named(self):
+        # The bundled skeleton without its patella: the quadriceps' insertion bone is missing.
+        package = rospkg.RosPack().get_path(PACKAGE)
+        with open(os.path.join(package, "urdf", "right_hip_thigh.urdf")) as handle:
+            urdf = handle.read()
+        urdf = re.sub(r'<joint name="patella_r_fixed"[\s\S]*?</joint>|<link name="patella_r">[\s\S]*?</link>', "", urdf)
+        self.assertNotIn('name="patella_r"', urdf)
+        with tempfile.NamedTemporaryFile("w", suffix=".urdf", delete=False) as handle:
+            handle.write(urdf)
+        try:
+            subprocess.run(["rosparam", "set", "-t", handle.name, "/robot_description"], check=True)
+            code, output = self.run_node()
+        finally:
+            subprocess.run(["rosparam", "delete", "/robot_description"], capture_output=True)
+            os.remove(handle.name)
+        self.assertNotEqual(code, 0)
+        self.assertIn("the URDF (/robot_description) has no link 'patella_r'", output)
+        self.assertIn("muscle 'rectus_femoris' names 'patella_r'", output)
+        # Before failing, the node compares robot_description with the URDF the scene names and says how they differ.
+        self.assertIn("was made for another skeleton than /robot_description", output)
+        self.assertIn("right_hip_thigh.urdf has 'patella_r'", output)
 
 
 if __name__ == "__main__":

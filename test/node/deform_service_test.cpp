@@ -223,7 +223,7 @@ int main(int argc, char** argv) {
   loaded.skeleton = md::Skeleton::fromUrdfString(urdf, "robot_description");
   const md::SceneDescription description = md::loadSceneDescription(scene_path);
   loaded.scene = md::loadScene(description, loaded.skeleton,
-                               md::makeUriResolver({{"muscle_deformation", package_root}}, package_root), package_root);
+                               md::makeUriResolver({{"muscle_deformation", package_root}}, package_root));
   expectations = &loaded;
   if (!ros::service::waitForService(kService, ros::Duration(300))) {
     ADD_FAILURE() << kService << " did not appear within 300 s";

@@ -88,7 +88,10 @@ TEST(GaitBag, EveryFrameSaysHowFinishedItIs) {
 
 TEST(GaitBag, SpheresStayOutOfBone) {
   double deepest = 0;
-  for (const auto& frame : statsCopy()) deepest = std::max(deepest, frame.max_penetration_sphere_bone_m);
+  for (const auto& frame : statsCopy()) {
+    EXPECT_TRUE(frame.has_collision_metrics) << "frame at " << frame.header.stamp << ": " << frame.collision_absent_reason;
+    deepest = std::max(deepest, frame.max_penetration_sphere_bone_m);
+  }
   EXPECT_LT(deepest, max_sphere_penetration_m);
   RecordProperty("max_penetration_sphere_bone_m", std::to_string(deepest));
 }

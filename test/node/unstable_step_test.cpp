@@ -68,6 +68,12 @@ TEST(UnstableStep, ServiceRecoversAndAnswersFinitePositions) {
   EXPECT_FALSE(srv.response.stats.diverged);
   EXPECT_LT(srv.response.stats.time_step_s, configured_step_s);
   EXPECT_TRUE(statsFinite(srv.response.stats));
+  // This node runs with surface_metrics false: those figures are absent and say why, never 0.
+  EXPECT_FALSE(srv.response.stats.has_surface_metrics);
+  EXPECT_TRUE(std::isnan(srv.response.stats.volume_error_max_pct));
+  EXPECT_EQ(srv.response.stats.surface_vertices_inside_bone, -1);
+  EXPECT_NE(srv.response.stats.surface_metrics_absent_reason.find("surface_metrics is false"), std::string::npos)
+      << srv.response.stats.surface_metrics_absent_reason;
   EXPECT_TRUE(cloudFinite(srv.response.particles));
 }
 

@@ -1,6 +1,7 @@
 // The converters between core results and ROS messages, without a roscore.
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/node/conversions.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <gtest/gtest.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
@@ -102,6 +103,65 @@ TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) 
   EXPECT_TRUE(measured.converged);
   EXPECT_TRUE(measured.has_residual);
   EXPECT_EQ(measured.force_residual, 2.5e-3);
+  EXPECT_EQ(measured.residual_absent_reason, "");
+}
+
+TEST(Conversions, FiguresThatWereNotMeasuredAreNaNWithTheirFlagAndReasonNeverZero) {
+  md::PipelineFrame frame;  // solver without a residual, collisions off, no surface metrics
+  frame.residual_absent_reason = "the verlet solver does not measure it (only block_descent does)";
+  frame.collision_absent_reason = "collisions are off";
+  frame.metrics_absent_reason = "bone 'pelvis': surface is not closed (3 boundary edges)";
+  const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_FALSE(stats.has_residual);
+  EXPECT_TRUE(std::isnan(stats.force_residual));
+  EXPECT_EQ(stats.residual_absent_reason, frame.residual_absent_reason);
+  EXPECT_FALSE(stats.has_collision_metrics);
+  EXPECT_EQ(stats.contacts, -1);
+  EXPECT_TRUE(std::isnan(stats.max_penetration_sphere_bone_m));
+  EXPECT_TRUE(std::isnan(stats.max_penetration_sphere_muscle_m));
+  EXPECT_EQ(stats.collision_absent_reason, "collisions are off");
+  EXPECT_FALSE(stats.has_surface_metrics);
+  EXPECT_TRUE(std::isnan(stats.volume_error_mean_pct));
+  EXPECT_TRUE(std::isnan(stats.volume_error_max_pct));
+  EXPECT_EQ(stats.volume_error_max_muscle, "");
+  EXPECT_EQ(stats.surface_vertices_inside_bone, -1);
+  EXPECT_TRUE(std::isnan(stats.max_surface_inside_bone_m));
+  EXPECT_EQ(stats.surface_metrics_absent_reason, frame.metrics_absent_reason);
+
+  // A frame without reasons still says the figures were not measured.
+  const muscle_deformation::DeformationStats bare = node::statsToMessage(md::PipelineFrame(), std_msgs::Header());
+  EXPECT_EQ(bare.residual_absent_reason, "not measured");
+  EXPECT_EQ(bare.surface_metrics_absent_reason, "not measured");
+}
+
+TEST(Conversions, MeasuredFiguresAreCopiedWithTheirFlagsAndNoReason) {
+  md::PipelineFrame frame;
+  frame.solve.has_collision = true;
+  frame.solve.collision.contacts = 0;  // measured: no contact is a result, not a missing figure
+  frame.solve.collision.max_penetration_muscle_bone_m = 0.0;
+  frame.solve.collision.max_penetration_muscle_muscle_m = 4e-4;
+  frame.has_metrics = true;
+  frame.metrics.volume_error_mean_pct = 0.0;
+  frame.metrics.volume_error_max_pct = 1.5;
+  frame.metrics.vertices_inside_bone = 0;
+  frame.metrics.max_inside_bone_depth_m = 0.0;
+  md::MuscleMetrics worst;
+  worst.name = "iliacus";
+  worst.volume_error_pct = -1.5;
+  frame.metrics.muscles = {worst};
+  const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_TRUE(stats.has_collision_metrics);
+  EXPECT_EQ(stats.collision_absent_reason, "");
+  EXPECT_EQ(stats.contacts, 0);
+  EXPECT_EQ(stats.max_penetration_sphere_bone_m, 0.0);
+  EXPECT_EQ(stats.max_penetration_sphere_muscle_m, 4e-4);
+  EXPECT_TRUE(stats.has_surface_metrics);
+  EXPECT_EQ(stats.surface_metrics_absent_reason, "");
+  EXPECT_EQ(stats.volume_error_mean_pct, 0.0);
+  EXPECT_EQ(stats.volume_error_max_pct, 1.5);
+  EXPECT_EQ(stats.volume_error_max_muscle, "iliacus");
+  EXPECT_EQ(stats.surface_vertices_inside_bone, 0);
+  EXPECT_EQ(stats.max_surface_inside_bone_m, 0.0);
 }
 
 TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
@@ -125,4 +185,23 @@ TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
     EXPECT_FLOAT_EQ(*z, static_cast<float>(positions(2, i)));
     EXPECT_EQ(*bone, i == 0 ? 2 : -1);
   }
+}
+
+TEST(Conversions, TheStreamsAbsentFiguresIncludeTheSurfaceMetricsWhenStatsMetricsIsFalse) {
+  md::SyntheticScene scene = md::makeSyntheticThigh(1, 3);
+  md::PipelineSettings settings;
+  settings.simulation.model.particles_per_fibre = 6;
+  settings.simulation.model.nearest_neighbours = 6;
+  std::vector<md::MuscleDescription> descriptions(1);
+  descriptions[0].name = scene.muscles[0].name;
+  const md::DeformationPipeline stream(descriptions, scene.muscles, scene.bones, settings);
+  ASSERT_NE(stream.metrics(), nullptr);
+  const std::vector<md::AbsentMetric> measured = node::absentStatsFigures(stream, true);
+  ASSERT_EQ(measured.size(), 1u);  // the Verlet solver's residual only
+  EXPECT_EQ(measured[0].figures, "force_residual");
+  const std::vector<md::AbsentMetric> without = node::absentStatsFigures(stream, false);
+  ASSERT_EQ(without.size(), 2u);
+  EXPECT_EQ(without[1].reason, "stats_metrics is false");
+  EXPECT_EQ(without[1].remedy, "set stats_metrics: true");
+  EXPECT_NE(without[1].describe().find("volume_error_*"), std::string::npos) << without[1].describe();
 }

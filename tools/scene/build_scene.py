@@ -728,15 +728,17 @@ YAML_HEADER = """\
 #   Bones are NOT listed here: they are the <collision> meshes of the URDF links.
 #
 # Keys
-#   urdf                    path of the skeleton URDF, relative to the package root
+#   Paths: relative ones start at this file's folder (here config/scenes/); absolute
+#   paths, package:// and file:// URIs are also accepted.
+#
+#   urdf                    path of the skeleton URDF
 #   frame                   frame the muscle surfaces are expressed in (link name)
 #   muscles[]               one entry per muscle
 #     name                  snake_case identifier, unique
-#     surface               closed 2-manifold triangle surface, binary STL, metres,
-#                           path relative to the package root
-#     fibres                fibre polylines (VTK legacy polydata, metres, same frame),
-#                           path relative to the package root; produced by
-#                           generate_fibres (may not exist until it has been run)
+#     surface               closed 2-manifold triangle surface, binary STL, metres
+#     fibres                fibre polylines (VTK legacy polydata, metres, same frame);
+#                           produced by generate_fibres (may not exist until it has
+#                           been run)
 #     origin_bone           URDF link of the origin (first gait2392 path point body)
 #     insertion_bone        URDF link of the insertion (last gait2392 path point body)
 #     color                 display colour RGBA, each component 0-1 (dimensionless)
@@ -763,7 +765,8 @@ def write_yaml(root):
             i = "patella_r"
         surf = "data/meshes/muscles/%s.stl" % name
         pd = sl.read_stl(out_path(surf))
-        e = {"name": name, "surface": surf, "fibres": "data/fibres/%s.vtk" % name,
+        # Paths in a scene start at its own folder (config/scenes/), two levels below the package root.
+        e = {"name": name, "surface": "../../" + surf, "fibres": "../../data/fibres/%s.vtk" % name,
              "origin_bone": o, "insertion_bone": i,
              "color": [float(c) for c in col], "tags": list(tags),
              "rest_volume_ml": round(sl.volume(pd) * 1e6, 1),
@@ -775,7 +778,7 @@ def write_yaml(root):
         else:
             e["attachment_note"] = "from gait2392 %s path points" % g
         entries.append(e)
-    doc = {"urdf": "urdf/right_hip_thigh.urdf", "frame": "pelvis", "muscles": entries}
+    doc = {"urdf": "../../urdf/right_hip_thigh.urdf", "frame": "pelvis", "muscles": entries}
     os.makedirs(out_path("config", "scenes"), exist_ok=True)
     with open(out_path("config", "scenes", "right_hip_thigh.yaml"), "w") as f:
         f.write(YAML_HEADER + "\n")

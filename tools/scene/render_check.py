@@ -83,7 +83,7 @@ def main():
     scene = yaml.safe_load(open(os.path.join(sl.PKG, "config", "scenes", "right_hip_thigh.yaml")))
     _, rest = forward_kinematics(urdf, {})
     for m in scene["muscles"]:
-        pd = sl.read_stl(os.path.join(sl.PKG, m["surface"]))
+        pd = sl.read_stl(os.path.join(sl.PKG, "config", "scenes", m["surface"]))
         if pose_muscles:
             # rigid move with the insertion link relative to its rest pose
             R1, p1 = poses[m["insertion_bone"]]

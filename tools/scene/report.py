@@ -102,7 +102,7 @@ def main():
     rows = []
     results = {}
     for m in scene["muscles"]:
-        pd = sl.read_stl(os.path.join(PKG, m["surface"]))
+        pd = sl.read_stl(os.path.join(PKG, "config", "scenes", m["surface"]))
         b, nm = sl.open_edges(pd)
         bow = sl.nonmanifold_vertices(pd)
         closed = b == 0 and nm == 0 and bow == 0

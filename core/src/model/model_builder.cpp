@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <sstream>
 
 namespace muscle_deformation {
 
@@ -85,6 +86,83 @@ std::vector<std::uint8_t> markBoundary(const Muscle& muscle, const FibreSamples&
   std::vector<std::uint8_t> boundary(samples.fibre_of.size(), 0);
   for (std::size_t i = 0; i < boundary.size(); ++i) boundary[i] = is_boundary_fibre[samples.fibre_of[i]] ? 1 : 0;
   return boundary;
+}
+
+// The bones a muscle may be fixed to (indices into `bones`): its origin and insertion, or every bone when it names
+// neither (then origin and insertion are kNoBone, and a fibre end goes to the nearest bone).
+struct AttachmentBones {
+  std::vector<int> allowed;
+  int origin = kNoBone, insertion = kNoBone;
+};
+
+AttachmentBones attachmentBones(const Muscle& muscle, const std::vector<Bone>& bones) {
+  AttachmentBones out;
+  if (muscle.origin_bone.empty() && muscle.insertion_bone.empty()) {
+    for (std::size_t b = 0; b < bones.size(); ++b) out.allowed.push_back(static_cast<int>(b));
+    return out;
+  }
+  if (bones.empty()) return out;  // fibre ends fixed in space, as for any muscle without bones
+  for (const std::string* name : {&muscle.origin_bone, &muscle.insertion_bone}) {
+    if (name->empty()) continue;
+    const auto bone = std::find_if(bones.begin(), bones.end(), [&](const Bone& b) { return b.name == *name; });
+    if (bone == bones.end()) {
+      std::string known;
+      for (const Bone& b : bones) known += (known.empty() ? "'" : ", '") + b.name + "'";
+      throw ModelError("muscle '" + muscle.name + "': its " + (name == &muscle.origin_bone ? "origin" : "insertion") +
+                       " bone '" + *name + "' is not one of the bones (" + known + ")");
+    }
+    const int index = static_cast<int>(bone - bones.begin());
+    (name == &muscle.origin_bone ? out.origin : out.insertion) = index;
+    if (std::find(out.allowed.begin(), out.allowed.end(), index) == out.allowed.end()) out.allowed.push_back(index);
+  }
+  // A muscle naming one bone only is fixed to it at both ends.
+  if (out.origin == kNoBone) out.origin = out.insertion;
+  if (out.insertion == kNoBone) out.insertion = out.origin;
+  return out;
+}
+
+// Fibres run from origin to insertion. A fibre whose start is nearer the insertion bone and whose end is nearer the
+// origin bone runs the other way (either end alone can be far from both bones: a tendon leaving the skeleton, an
+// attachment patch from the principal axis). Returns (reversed, checked) fibres.
+std::pair<int, int> countReversedFibres(const Muscle& muscle, const AttachmentBones& attachment,
+                                        const BoneQueries& queries) {
+  if (attachment.origin == kNoBone || attachment.origin == attachment.insertion) return {0, 0};
+  const SurfaceDistance& origin = queries.surfaces[static_cast<std::size_t>(attachment.origin)];
+  const SurfaceDistance& insertion = queries.surfaces[static_cast<std::size_t>(attachment.insertion)];
+  int reversed = 0, checked = 0;
+  for (const Polyline& fibre : muscle.fibres) {
+    if (fibre.cols() < 2 || !fibre.allFinite()) continue;
+    const Eigen::Vector3d start = fibre.col(0), end = fibre.col(fibre.cols() - 1);
+    ++checked;
+    if (insertion.distance(start) < origin.distance(start) && origin.distance(end) < insertion.distance(end))
+      ++reversed;
+  }
+  return {reversed, checked};
+}
+
+// The closest pair of particles of one muscle (global indices offset .. offset + count) fixed to different bones.
+void findClosestAttachments(const MassSpringSystem& system, Eigen::Index offset, Eigen::Index count,
+                            const std::vector<Bone>& bones, MuscleBuildSummary& summary) {
+  std::map<int, std::vector<Eigen::Index>> fixed_by_bone;
+  for (Eigen::Index i = offset; i < offset + count; ++i)
+    if (system.is_fixed[static_cast<std::size_t>(i)] && system.fixed_bone[static_cast<std::size_t>(i)] != kNoBone)
+      fixed_by_bone[system.fixed_bone[static_cast<std::size_t>(i)]].push_back(i);
+  for (auto a = fixed_by_bone.begin(); a != fixed_by_bone.end(); ++a) {
+    Eigen::Matrix3Xd points(3, static_cast<Eigen::Index>(a->second.size()));
+    for (std::size_t k = 0; k < a->second.size(); ++k)
+      points.col(static_cast<Eigen::Index>(k)) = system.rest_position.col(a->second[k]);
+    const PointIndex index(points);
+    for (auto b = std::next(a); b != fixed_by_bone.end(); ++b) {
+      for (Eigen::Index i : b->second) {
+        const double d = index.nearest(system.rest_position.col(i)).second;
+        if (d < summary.closest_attachments_m) {
+          summary.closest_attachments_m = d;
+          summary.closest_attachment_bones[0] = bones[static_cast<std::size_t>(a->first)].name;
+          summary.closest_attachment_bones[1] = bones[static_cast<std::size_t>(b->first)].name;
+        }
+      }
+    }
+  }
 }
 
 }  // namespace
@@ -168,6 +246,10 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.mass.segment(offset, count).setConstant(settings.density_kg_per_m3 * volume / static_cast<double>(count));
     const std::vector<std::uint8_t> boundary = markBoundary(muscle, samples, settings.boundary_fibre_fraction);
 
+    // The bones this muscle may be fixed to: its origin and insertion (every bone when it names neither).
+    const AttachmentBones attachment = attachmentBones(muscle, bones);
+    const auto [reversed_fibres, checked_fibres] = countReversedFibres(muscle, attachment, bone_queries);
+
     // Per particle: fibre bookkeeping, attachments, and the bones it follows in the rigid pre-transform.
     for (Eigen::Index local = 0; local < count; ++local) {
       const Eigen::Index i = offset + local;
@@ -190,21 +272,27 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
 
       int attached = kNoBone;
       double attached_distance = settings.attachment_distance_m;
-      for (int b = 0; b < bone_count; ++b) {
+      for (int b : attachment.allowed) {
         const double d = bone_queries.surfaces[b].distanceWithin(p, attached_distance);
         if (d <= attached_distance) {
           attached = b;
           attached_distance = d;
         }
       }
-      const bool fibre_end = samples.sample_of[local] == 0 || samples.sample_of[local] == settings.particles_per_fibre - 1;
+      const bool fibre_start = samples.sample_of[local] == 0;
+      const bool fibre_end = fibre_start || samples.sample_of[local] == settings.particles_per_fibre - 1;
       if (attached == kNoBone && settings.fix_fibre_ends && fibre_end) {
-        double best = std::numeric_limits<double>::infinity();
-        for (int b = 0; b < bone_count; ++b) {
-          const double d = bone_queries.surfaces[b].distance(p);
-          if (d < best) {
-            best = d;
-            attached = b;
+        if (attachment.origin != kNoBone) {
+          // The fibre's first particle belongs to the origin, its last to the insertion.
+          attached = fibre_start ? attachment.origin : attachment.insertion;
+        } else {
+          double best = std::numeric_limits<double>::infinity();
+          for (int b : attachment.allowed) {
+            const double d = bone_queries.surfaces[b].distance(p);
+            if (d < best) {
+              best = d;
+              attached = b;
+            }
           }
         }
       }
@@ -214,6 +302,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
         system.blend_bone(0, i) = attached;
         system.blend_weight(0, i) = 1.0;
         ++summary.fixed_particles;
+        ++summary.fixed_by_bone[bones[static_cast<std::size_t>(attached)].name];
         continue;
       }
       const int blended = std::min(bone_count, MassSpringSystem::kBlendBones);
@@ -225,6 +314,26 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
         weight_sum += system.blend_weight(k, i);
       }
       system.blend_weight.col(i) /= weight_sum;
+    }
+
+    if (checked_fibres > 0 && 2 * reversed_fibres > checked_fibres)
+      out.warnings.push_back("muscle '" + muscle.name + "': " + std::to_string(reversed_fibres) + " of " +
+                             std::to_string(checked_fibres) + " fibres start nearer its insertion bone '" +
+                             muscle.insertion_bone + "' and end nearer its origin bone '" + muscle.origin_bone +
+                             "'; fibres must run from origin to insertion (are origin_bone and insertion_bone "
+                             "swapped, or the fibre file reversed?)");
+    if (bone_count > 0) {
+      findClosestAttachments(system, offset, count, bones, summary);
+      if (summary.closest_attachments_m < kCloseAttachmentsWarningM) {
+        std::ostringstream warning;
+        warning << "muscle '" << muscle.name << "': particles fixed to '" << summary.closest_attachment_bones[0]
+                << "' and to '" << summary.closest_attachment_bones[1] << "' are "
+                << 1000.0 * summary.closest_attachments_m << " mm apart at rest (less than "
+                << 1000.0 * kCloseAttachmentsWarningM
+                << " mm): moving the joint between these bones stretches the springs between them, which no solver "
+                   "can undo. Check the muscle's origin_bone and insertion_bone, or lower attachment_distance_m";
+        out.warnings.push_back(warning.str());
+      }
     }
 
     // Springs of this muscle, in global indices.

@@ -28,7 +28,7 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
     }
     skinning_setup_ms_ = millisecondsSince(start);
   } else {
-    skinning_problem_ = "surface skinning disabled by the settings";
+    skinning_problem_ = "turned off (surfaces and surface_metrics are false)";
   }
   if (settings_.measure_fidelity && skinning_) {
     const auto start = std::chrono::steady_clock::now();
@@ -40,7 +40,7 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
     metrics_setup_ms_ = millisecondsSince(start);
   } else {
     metrics_problem_ = settings_.measure_fidelity ? "needs the surface skinning (" + skinning_problem_ + ")"
-                                                  : "fidelity metrics disabled by the settings";
+                                                  : "turned off (surface_metrics is false)";
   }
 }
 
@@ -57,8 +57,24 @@ const PipelineFrame& DeformationPipeline::solve(const BoneTransforms& transforms
   frame_.has_metrics = false;
   frame_.skinning_ms = 0;
   frame_.metrics_ms = 0;
+  frame_.residual_absent_reason.clear();
+  frame_.collision_absent_reason.clear();
+  frame_.metrics_absent_reason.clear();
+  if (frame_.solve.solve.residual < 0)
+    frame_.residual_absent_reason = simulation_->settings().solver_kind == SolverKind::block_descent
+                                        ? "not measured in this solve"
+                                        : residualAbsence().reason;
+  if (!frame_.solve.has_collision) frame_.collision_absent_reason = collisionAbsence().reason;
   const Eigen::Matrix3Xd& positions = simulation_->state().position;
-  if (!frame_.solve.finite) return frame_;
+  if (!metrics_)
+    frame_.metrics_absent_reason = metricsAbsence().reason;
+  else if (!want_metrics)
+    frame_.metrics_absent_reason = "not asked for in this solve";
+  if (!frame_.solve.finite) {
+    if (frame_.metrics_absent_reason.empty())
+      frame_.metrics_absent_reason = "the solve gave non-finite particle positions";
+    return frame_;
+  }
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
     skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
@@ -72,6 +88,38 @@ const PipelineFrame& DeformationPipeline::solve(const BoneTransforms& transforms
     frame_.has_metrics = true;
   }
   return frame_;
+}
+
+AbsentMetric DeformationPipeline::residualAbsence() const {
+  const SolverKind kind = simulation_->settings().solver_kind;
+  return {"force_residual", "the " + toString(kind) + " solver does not measure it (only block_descent does)",
+          "set solver: block_descent", true};
+}
+
+AbsentMetric DeformationPipeline::collisionAbsence() const {
+  return {"contacts, max_penetration_sphere_bone_m, max_penetration_sphere_muscle_m", "collisions are off",
+          "set collisions: true", true};
+}
+
+AbsentMetric DeformationPipeline::metricsAbsence() const {
+  AbsentMetric absent{"volume_error_*, surface_vertices_inside_bone, max_surface_inside_bone_m", metrics_problem_, ""};
+  absent.turned_off = !settings_.measure_fidelity;
+  if (!settings_.measure_fidelity)
+    absent.remedy = "set surface_metrics: true";
+  else if (!skinning_)
+    absent.remedy = "the muscle surfaces must be skinned: fix what the reason names";
+  else
+    absent.remedy = "every bone and muscle needs a closed surface: repair the one the reason names (a muscle with "
+                    "repair_surfaces: true in the scene, a bone in the URDF's collision mesh)";
+  return absent;
+}
+
+std::vector<AbsentMetric> DeformationPipeline::absentMetrics() const {
+  std::vector<AbsentMetric> absent;
+  if (simulation_->settings().solver_kind != SolverKind::block_descent) absent.push_back(residualAbsence());
+  if (!simulation_->collisionWorld()) absent.push_back(collisionAbsence());
+  if (!metrics_) absent.push_back(metricsAbsence());
+  return absent;
 }
 
 std::size_t DeformationPipeline::modelBytes() const {

@@ -82,6 +82,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   for (const Eigen::Isometry3d& transform : transforms)
     if (!transform.matrix().allFinite()) throw std::invalid_argument("pose has a non-finite bone transform");
   FrameStats stats;
+  stats.has_collision = collision_ != nullptr;
   stats.warm_started = start == StartMode::warm && has_previous_;
   if (stats.warm_started)
     warmStart(system_, previous_transforms_, transforms, state_);

@@ -132,6 +132,9 @@ SceneDescription loadSceneDescription(const std::string& yaml_path) {
 
   SceneDescription scene;
   scene.path = yaml_path;
+  std::error_code error;
+  const fs::path absolute = fs::absolute(yaml_path, error);
+  scene.folder = (error ? fs::path(yaml_path) : absolute).lexically_normal().parent_path().string();
   scene.urdf_file = requiredString(root, "urdf", yaml_path, "the scene");
   scene.frame = requiredString(root, "frame", yaml_path, "the scene");
   if (const YAML::Node repair = root["repair_surfaces"]; repair.IsDefined() && !repair.IsNull()) {
@@ -184,9 +187,41 @@ std::vector<MuscleDescription> selectMuscles(const SceneDescription& scene, cons
   return out;
 }
 
-std::string resolveScenePath(const std::string& path, const std::string& package_root) {
-  if (path.empty()) throw SceneError("empty path in the scene");
-  return fs::path(path).is_absolute() ? path : (fs::path(package_root) / path).string();
+namespace {
+
+// resolveScenePath without the scene file's name in front of its errors.
+std::string resolvePathIn(const SceneDescription& scene, const std::string& path, const UriResolver& resolve_uri) {
+  if (path.empty()) throw SceneError("empty path");
+  if (startsWith(path, "package://") || startsWith(path, "file://")) {
+    if (!resolve_uri) throw SceneError("'" + path + "': no resolver for package:// and file:// URIs given here");
+    return resolve_uri(path);
+  }
+  if (fs::path(path).is_absolute()) return path;
+  return (fs::path(scene.folder) / path).lexically_normal().string();
+}
+
+}  // namespace
+
+std::string resolveScenePath(const SceneDescription& scene, const std::string& path, const UriResolver& resolve_uri) {
+  try {
+    return resolvePathIn(scene, path, resolve_uri);
+  } catch (const SceneError& e) {
+    throw SceneError(scene.path + ": " + e.what());
+  }
+}
+
+std::vector<std::string> linksMissingFrom(const SceneDescription& description, const Skeleton& skeleton) {
+  std::vector<std::string> missing;
+  const auto check = [&](const std::string& link) {
+    if (!skeleton.link(link) && std::find(missing.begin(), missing.end(), link) == missing.end())
+      missing.push_back(link);
+  };
+  check(description.frame);
+  for (const MuscleDescription& m : description.muscles) {
+    check(m.origin_bone);
+    check(m.insertion_bone);
+  }
+  return missing;
 }
 
 namespace {
@@ -246,7 +281,28 @@ std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve
 }
 
 Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
-                const std::string& package_root, const std::vector<std::string>& selection) {
+                const std::vector<std::string>& selection) {
+  // Every name before anything is loaded, so that a scene written for another skeleton fails fast and names all the
+  // links it lacks, not the first.
+  if (const std::vector<std::string> missing = linksMissingFrom(description, skeleton); !missing.empty()) {
+    constexpr int kUsersListed = 5;
+    std::string links, users;
+    int user_count = 0;
+    const auto addUser = [&](const std::string& user) {
+      if (++user_count <= kUsersListed) users += (users.empty() ? "" : ", ") + user;
+    };
+    for (const std::string& link : missing) links += (links.empty() ? "'" : ", '") + link + "'";
+    if (std::find(missing.begin(), missing.end(), description.frame) != missing.end())
+      addUser("the scene frame is '" + description.frame + "'");
+    for (const MuscleDescription& m : description.muscles)
+      for (const std::string* bone : {&m.origin_bone, &m.insertion_bone})
+        if (std::find(missing.begin(), missing.end(), *bone) != missing.end())
+          addUser("muscle '" + m.name + "' names '" + *bone + "'");
+    if (user_count > kUsersListed) users += " and " + std::to_string(user_count - kUsersListed) + " more";
+    throw SceneError(description.path + ": the URDF (" + skeleton.source() + ") has no link" +
+                     (missing.size() > 1 ? "s " : " ") + links + " (" + users +
+                     "); is it the skeleton the scene was made for?");
+  }
   Scene scene;
   scene.skeleton = skeleton;
   try {
@@ -255,15 +311,6 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     throw SceneError(description.path + ": " + e.what());
   }
   scene.muscle_descriptions = selectMuscles(description, selection);
-  // Check every name before loading anything, so a typo fails fast and names the muscle.
-  for (const MuscleDescription& m : scene.muscle_descriptions) {
-    for (const std::string* bone : {&m.origin_bone, &m.insertion_bone}) {
-      if (!skeleton.link(*bone)) {
-        throw SceneError(description.path + ": muscle '" + m.name + "' names bone '" + *bone +
-                         "', which is not a link of the URDF");
-      }
-    }
-  }
   scene.bones = bonesAtRest(skeleton, resolve_mesh, scene.rest_link_poses);
   // Bones are the links with <collision> meshes: without one, a muscle's attachments follow nothing and the muscles
   // never move, which must not pass for a working scene.
@@ -292,18 +339,14 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
   for (const MuscleDescription& m : scene.muscle_descriptions) {
     Muscle muscle;
     muscle.name = m.name;
-    // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths are relative
-    // to the package root.
-    const auto scenePath = [&](const std::string& path) {
-      return startsWith(path, "package://") || startsWith(path, "file://") ? resolve_mesh(path)
-                                                                            : resolveScenePath(path, package_root);
-    };
+    muscle.origin_bone = m.origin_bone;
+    muscle.insertion_bone = m.insertion_bone;
+    // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths start at
+    // the scene file's folder.
     std::string surface_path, fibre_path;
     try {
-      surface_path = scenePath(m.surface_file);
-      fibre_path = startsWith(m.fibre_file, "package://") || startsWith(m.fibre_file, "file://")
-                       ? scenePath(m.fibre_file)
-                       : resolveScenePath(m.fibre_file, package_root);
+      surface_path = resolvePathIn(description, m.surface_file, resolve_mesh);
+      fibre_path = resolvePathIn(description, m.fibre_file, resolve_mesh);
     } catch (const SceneError& e) {
       throw SceneError(description.path + ": muscle '" + m.name + "': " + e.what());
     }

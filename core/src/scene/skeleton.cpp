@@ -94,6 +94,7 @@ Skeleton Skeleton::fromUrdfString(const std::string& xml, const std::string& sou
   }
 
   Skeleton skeleton;
+  skeleton.source_ = source_name;
   skeleton.root_ = model->getRoot()->name;
 
   // Document order first, then anything urdfdom knows that the text scan missed (it cannot miss a real element,
@@ -269,6 +270,32 @@ std::map<std::string, Eigen::Isometry3d> Skeleton::linkPoses(const JointValues& 
     pending.swap(next);
   }
   return poses;
+}
+
+std::string describeLinkDifferences(const Skeleton& a, const Skeleton& b) {
+  const auto namesOf = [](const Skeleton& skeleton) {
+    std::set<std::string> names;
+    for (const SkeletonLink& link : skeleton.links()) names.insert(link.name);
+    return names;
+  };
+  const std::set<std::string> in_a = namesOf(a), in_b = namesOf(b);
+  const auto onlyIn = [](const std::set<std::string>& these, const std::set<std::string>& others) {
+    constexpr std::size_t kListed = 10;
+    std::string list;
+    std::size_t count = 0;
+    for (const std::string& name : these) {
+      if (others.count(name)) continue;
+      if (++count <= kListed) list += (list.empty() ? "'" : ", '") + name + "'";
+    }
+    if (count > kListed) list += " and " + std::to_string(count - kListed) + " more";
+    return list;
+  };
+  const std::string only_a = onlyIn(in_a, in_b), only_b = onlyIn(in_b, in_a);
+  if (only_a.empty() && only_b.empty()) return {};
+  std::string text;
+  if (!only_a.empty()) text += "only " + a.source() + " has " + only_a;
+  if (!only_b.empty()) text += std::string(text.empty() ? "" : "; ") + "only " + b.source() + " has " + only_b;
+  return text;
 }
 
 }  // namespace muscle_deformation

@@ -4,10 +4,10 @@ namespace muscle_deformation {
 
 BundledScene loadBundledScene(const std::string& package_dir, const std::vector<std::string>& selection) {
   const SceneDescription description = loadSceneDescription(package_dir + "/config/scenes/right_hip_thigh.yaml");
-  const Skeleton skeleton = Skeleton::fromUrdfFile(resolveScenePath(description.urdf_file, package_dir));
+  const UriResolver resolve = makeUriResolver({{"muscle_deformation", package_dir}}, package_dir);
+  const Skeleton skeleton = Skeleton::fromUrdfFile(resolveScenePath(description, description.urdf_file, resolve));
   BundledScene bundled;
-  bundled.scene = loadScene(description, skeleton, makeUriResolver({{"muscle_deformation", package_dir}}, package_dir),
-                            package_dir, selection);
+  bundled.scene = loadScene(description, skeleton, resolve, selection);
   bundled.gait = loadJointTrajectoryCsv(package_dir + "/data/gait/gait_1cycle.csv");
   return bundled;
 }

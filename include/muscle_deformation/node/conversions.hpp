@@ -71,7 +71,13 @@ visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinnin
                                                   const std_msgs::Header& header, float alpha);
 
 // Per-frame statistics (the running counters are left at 0 for the caller to fill). `converged` is true only when a
-// convergence criterion was met (SolveStats::converged), never for running out of iterations or time.
+// convergence criterion was met (SolveStats::converged), never for running out of iterations or time. A figure the
+// frame does not have (residual, collision, surface metrics) is NaN (a count -1) with its has_* flag false and the
+// frame's reason, never 0.
 muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const std_msgs::Header& header);
+
+// The ~stats figures the node's stream never measures, as set up: the pipeline's (DeformationPipeline::absentMetrics)
+// and the surface metrics when ~stats_metrics is false; each with the reason and how to turn it on.
+std::vector<AbsentMetric> absentStatsFigures(const DeformationPipeline& stream, bool stats_metrics);
 
 }  // namespace muscle_deformation::node

@@ -21,6 +21,9 @@ struct Muscle {
   std::string name;               // e.g. "rectus_femoris"
   TriangleMesh surface;           // closed, 2-manifold, rest pose, scene frame
   std::vector<Polyline> fibres;   // origin to insertion, rest pose, scene frame
+  // The bones (Bone::name) the muscle is attached to: its particles are fixed to these only, and collide with any
+  // other bone. Both empty: the muscle is attached to whichever bone its particles are near (synthetic set-ups).
+  std::string origin_bone, insertion_bone;
 };
 
 // Rigid transform of every bone from its rest placement to the current one (scene frame).

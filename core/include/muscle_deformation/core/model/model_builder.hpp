@@ -8,6 +8,8 @@
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include <cstdint>
+#include <limits>
+#include <map>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -20,8 +22,10 @@ struct ModelSettings {
   std::uint32_t sampling_seed = 1;
   SpringLayout spring_layout = SpringLayout::nearest_neighbours;
   int nearest_neighbours = 18;             // thesis: 15-20
-  double attachment_distance_m = 0.002;    // particles closer than this to a bone surface are fixed to it
-  bool fix_fibre_ends = true;              // first and last particle of every fibre fixed to the nearest bone
+  double attachment_distance_m = 0.002;    // particles closer than this to their muscle's origin or insertion bone
+                                           // surface are fixed to it (near any other bone they collide)
+  bool fix_fibre_ends = true;              // first particle of every fibre fixed to the muscle's origin bone, last
+                                           // to its insertion bone (fibres run origin to insertion)
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
@@ -47,7 +51,16 @@ struct MuscleBuildSummary {
   int dropped_springs = 0;  // joined coincident particles (zero rest length)
   double mean_radius_m = 0; // mean collision sphere radius of the boundary particles
   double volume_m3 = 0;
+  std::map<std::string, int> fixed_by_bone;  // fixed particles per bone name
+  // The closest two particles fixed to different bones, at rest (infinity when at most one bone holds particles):
+  // two bones that move apart stretch the springs between such particles, which no solver can undo.
+  double closest_attachments_m = std::numeric_limits<double>::infinity();
+  std::string closest_attachment_bones[2];
 };
+
+// Particles fixed to two different bones closer than this at rest (m) make buildMassSpringSystem warn, naming the
+// muscle and the bones: a joint between those bones moving pulls them apart by centimetres.
+constexpr double kCloseAttachmentsWarningM = 0.005;
 
 struct ModelBuildReport {
   std::vector<MuscleBuildSummary> muscles;
@@ -55,8 +68,13 @@ struct ModelBuildReport {
   double build_ms = 0;
 };
 
-// Throws ModelError on invalid settings or unusable input. Bones may be empty (fibre ends are then fixed in space).
-// Boundary particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
+// Throws ModelError on invalid settings or unusable input (among others a muscle naming an origin or insertion bone
+// that is not in `bones`). Bones may be empty (fibre ends are then fixed in space). Attachments follow the anatomy: a
+// particle is fixed only to its muscle's origin or insertion bone (Muscle::origin_bone, insertion_bone; any bone when
+// the muscle names neither) and collides with the others; a fibre's first particle goes to the origin and its last to
+// the insertion (fix_fibre_ends). The report warns, naming the muscle, when particles fixed to two bones lie closer
+// than kCloseAttachmentsWarningM at rest, and when most fibres run from the insertion to the origin bone. Boundary
+// particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report = nullptr);
 

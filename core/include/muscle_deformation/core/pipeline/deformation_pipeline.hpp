@@ -30,6 +30,21 @@ struct PipelineFrame {
   bool has_metrics = false;
   SceneMetrics metrics;             // when has_metrics
   double metrics_ms = 0;
+  // Why a figure of this frame is absent (empty when it is there): the force residual (solve.solve.residual < 0),
+  // the contacts and penetrations (solve.has_collision false), the surface metrics (has_metrics false).
+  std::string residual_absent_reason, collision_absent_reason, metrics_absent_reason;
+};
+
+// A figure the pipeline cannot give, with the reason and what would turn it on (setting names as in the settings
+// table and config/muscle_deformation.yaml).
+struct AbsentMetric {
+  std::string figures;  // e.g. "force_residual"
+  std::string reason;
+  std::string remedy;
+  bool turned_off = false;  // a setting chose it (true), or something is broken (false)
+
+  // "<figures>: <reason>; to measure, <remedy>"
+  std::string describe() const { return figures + ": " + reason + "; to measure, " + remedy; }
 };
 
 class DeformationPipeline {
@@ -61,6 +76,9 @@ class DeformationPipeline {
   const DeformationMetrics* metrics() const { return metrics_.get(); }
   const std::string& skinningProblem() const { return skinning_problem_; }
   const std::string& metricsProblem() const { return metrics_problem_; }
+  // Every figure this pipeline never measures, as set up (empty when it measures all): the force residual, the
+  // collision figures, the surface metrics.
+  std::vector<AbsentMetric> absentMetrics() const;
   double skinningSetupMs() const { return skinning_setup_ms_; }
   double metricsSetupMs() const { return metrics_setup_ms_; }
 
@@ -70,6 +88,10 @@ class DeformationPipeline {
   std::string describe() const;
 
  private:
+  AbsentMetric residualAbsence() const;
+  AbsentMetric collisionAbsence() const;
+  AbsentMetric metricsAbsence() const;
+
   std::vector<MuscleDescription> descriptions_;
   PipelineSettings settings_;
   std::unique_ptr<MuscleSimulation> simulation_;

@@ -34,7 +34,8 @@ enum class StartMode {
 
 struct FrameStats {
   SolveStats solve;          // iterations, per-phase times, spring deviation, strain
-  CollisionStats collision;  // contacts and remaining penetration after the last iteration
+  CollisionStats collision;  // contacts and remaining penetration after the last iteration, when has_collision
+  bool has_collision = false;  // collisions are on, so `collision` was measured (off: its figures mean nothing)
   bool warm_started = false;
   bool finite = true;        // every particle position is finite (always, unless the rest shape itself is not)
   // The solve left non-finite positions despite the solver's own recovery; the state is the rigid pre-transform.

@@ -1,6 +1,7 @@
 // Loading a scene: the skeleton from a URDF (bones = links with <collision> meshes) and the muscles from a scene YAML
 // (config/scenes/*.yaml). ROS-free: the URDF arrives as a string (the node reads robot_description), and mesh URIs
-// (package://, file://, relative paths) are turned into file paths by a resolver the caller supplies.
+// (package://, file://, relative paths) are turned into file paths by a resolver the caller supplies. Paths written in
+// the scene YAML are relative to the YAML's own folder, so a scene directory can be moved or shared as it is.
 #pragma once
 
 #include "muscle_deformation/core/model/model.hpp"
@@ -28,8 +29,8 @@ UriResolver makeUriResolver(std::map<std::string, std::string> package_roots, st
 
 struct MuscleDescription {
   std::string name;
-  std::string surface_file;  // as written (relative to the package root unless absolute)
-  std::string fibre_file;
+  std::string surface_file;  // as written: relative to the scene file's folder, absolute, package:// or file://
+  std::string fibre_file;    // as written, the same forms
   std::string origin_bone, insertion_bone;  // URDF link names
   std::array<float, 4> colour{0.8f, 0.2f, 0.2f, 1.0f};  // RGBA 0-1
   std::vector<std::string> tags;                         // e.g. thigh13, hip
@@ -37,7 +38,8 @@ struct MuscleDescription {
 
 struct SceneDescription {
   std::string path;        // the YAML file
-  std::string urdf_file;   // `urdf:` key, relative to the package root
+  std::string folder;      // the YAML file's folder (absolute): relative paths in the scene start here
+  std::string urdf_file;   // `urdf:` key as written (the same forms as MuscleDescription::surface_file)
   std::string frame;       // `frame:` key: the link whose frame the muscle files use (the fixed frame at zero)
   std::vector<MuscleDescription> muscles;
   // `repair_surfaces:` key (default false): muscle surfaces that are not closed are repaired on loading
@@ -66,13 +68,18 @@ struct Scene {
   std::vector<std::string> repairs;
 };
 
-// Loads the selected muscles and every bone with collision meshes. `package_root` resolves relative scene paths;
-// package:// and file:// URIs in the scene go through `resolve_mesh`. Throws SceneError (or LoadError from the mesh
-// loaders, naming the file) on any missing or broken input: among others a scene without bones (no link with a
-// <collision> mesh), a muscle attached to a link without one, and fibres further than kFibreOutsideToleranceM outside
-// their muscle's surface.
+// The links the scene names (its `frame`, every muscle's origin_bone and insertion_bone, of every muscle, selected or
+// not) that are not links of `skeleton`, each once, in the order the scene first names them. Empty when the scene
+// and the skeleton fit.
+std::vector<std::string> linksMissingFrom(const SceneDescription& description, const Skeleton& skeleton);
+
+// Loads the selected muscles and every bone with collision meshes. Relative scene paths start at the scene file's
+// folder; package:// and file:// URIs, in the scene and in the URDF, go through `resolve_mesh`. Throws SceneError (or
+// LoadError from the mesh loaders, naming the file) on any missing or broken input: among others links the scene names
+// that the URDF lacks (all of them listed), a scene without bones (no link with a <collision> mesh), a muscle attached
+// to a link without one, and fibres further than kFibreOutsideToleranceM outside their muscle's surface.
 Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
-                const std::string& package_root, const std::vector<std::string>& selection = {});
+                const std::vector<std::string>& selection = {});
 
 // How far a muscle's fibres stray outside its closed surface: the largest distance of a fibre point outside it (0
 // when every point is inside), and which point that is.
@@ -87,9 +94,12 @@ FibreExcursion fibreExcursion(const Muscle& muscle);
 // lies centimetres away.
 constexpr double kFibreOutsideToleranceM = 0.005;
 
-// A scene path (`surface:`, `fibres:`, `urdf:`) as a file path: absolute paths stay, others are relative to
-// package_root.
-std::string resolveScenePath(const std::string& path, const std::string& package_root);
+// A path written in the scene (`urdf:`, `surface:`, `fibres:`) as a file path: package:// and file:// URIs through
+// `resolve_uri` (which checks the file is there; an empty resolver refuses URIs), an absolute path as written, a
+// relative one from the scene file's folder (not checked: a fibre file may be about to be written). Throws SceneError
+// naming the scene file.
+std::string resolveScenePath(const SceneDescription& scene, const std::string& path,
+                             const UriResolver& resolve_uri = {});
 
 // Only the bones of loadScene (one per link with collision meshes, ids = index, rest pose in the link `frame` of the
 // zero configuration), e.g. for tools that run before fibre files exist. Throws SceneError for an unknown frame.

@@ -49,6 +49,7 @@ class Skeleton {
   static Skeleton fromUrdfString(const std::string& xml, const std::string& source_name);
   static Skeleton fromUrdfFile(const std::string& path);
 
+  const std::string& source() const { return source_; }  // the source_name it was parsed from
   const std::string& rootLink() const { return root_; }
   const std::vector<SkeletonLink>& links() const { return links_; }
   const std::vector<SkeletonJoint>& joints() const { return joints_; }
@@ -64,9 +65,15 @@ class Skeleton {
                                                      std::vector<std::string>* warnings = nullptr) const;
 
  private:
+  std::string source_;
   std::string root_;
   std::vector<SkeletonLink> links_;
   std::vector<SkeletonJoint> joints_;
 };
+
+// How the link names of two skeletons differ (e.g. the URDF file a scene was made for and the robot_description a
+// node was given): empty when both have the same links, otherwise one sentence naming the links only one of them has
+// (at most 10 of each, then a count).
+std::string describeLinkDifferences(const Skeleton& a, const Skeleton& b);
 
 }  // namespace muscle_deformation
