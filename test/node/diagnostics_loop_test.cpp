@@ -39,6 +39,9 @@ TEST(DiagnosticsLoop, KeepPublishingThroughEveryWrapOfTheBag) {
   // Resume the paused player once the node listens.
   ros::ServiceClient pause = node.serviceClient<std_srvs::SetBool>("/player/pause_playback");
   ASSERT_TRUE(pause.waitForExistence(ros::Duration(60)));
+  // The node may still be building the scene (bone distance fields, skinning) when the player is up: the bag is to wrap
+  // under a running node, so wait for its first diagnostics before playing.
+  ASSERT_TRUE(waitFor([&] { return diagnostics.messages() > 0; }, 60.0)) << "the node never published diagnostics";
   std_srvs::SetBool resume;
   resume.request.data = false;
   ASSERT_TRUE(pause.call(resume));
