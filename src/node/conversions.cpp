@@ -291,6 +291,14 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
     }
     stats.surface_vertices_inside_bone = metrics.vertices_inside_bone;
     stats.max_surface_inside_bone_m = metrics.max_inside_bone_depth_m;
+    double deepest = 0;
+    for (const MuscleMetrics& m : metrics.muscles) {
+      if (m.vertices_inside_bone > 0 && m.max_inside_bone_depth_m >= deepest) {
+        deepest = m.max_inside_bone_depth_m;
+        stats.max_surface_inside_bone_muscle = m.name;
+        stats.max_surface_inside_bone_bone = m.deepest_bone;
+      }
+    }
   } else {
     stats.surface_metrics_absent_reason =
         frame.metrics_absent_reason.empty() ? "not measured" : frame.metrics_absent_reason;

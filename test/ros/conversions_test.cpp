@@ -162,6 +162,29 @@ TEST(Conversions, MeasuredFiguresAreCopiedWithTheirFlagsAndNoReason) {
   EXPECT_EQ(stats.volume_error_max_muscle, "iliacus");
   EXPECT_EQ(stats.surface_vertices_inside_bone, 0);
   EXPECT_EQ(stats.max_surface_inside_bone_m, 0.0);
+  EXPECT_EQ(stats.max_surface_inside_bone_muscle, "") << "no vertex is inside a bone";
+}
+
+TEST(Conversions, TheDeepestSurfaceVertexInsideABoneIsNamedWithItsMuscleAndBone) {
+  md::PipelineFrame frame;
+  frame.has_metrics = true;
+  md::MuscleMetrics shallow, deep, clear;
+  shallow.name = "piriformis";
+  shallow.vertices_inside_bone = 12;
+  shallow.max_inside_bone_depth_m = 0.002;
+  shallow.deepest_bone = "pelvis";
+  deep.name = "iliacus";
+  deep.vertices_inside_bone = 3;
+  deep.max_inside_bone_depth_m = 0.009;
+  deep.deepest_bone = "pelvis";
+  clear.name = "sartorius";
+  frame.metrics.muscles = {shallow, deep, clear};
+  frame.metrics.vertices_inside_bone = 15;
+  frame.metrics.max_inside_bone_depth_m = 0.009;
+  const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_EQ(stats.max_surface_inside_bone_muscle, "iliacus");
+  EXPECT_EQ(stats.max_surface_inside_bone_bone, "pelvis");
+  EXPECT_EQ(stats.max_surface_inside_bone_m, 0.009);
 }
 
 TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
