@@ -143,17 +143,28 @@ TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
   EXPECT_THROW(BlockDescentSolver(system, bad), std::invalid_argument);
 }
 
-TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
-  // A particle hung between two fixed ends 2 m apart, pulled by its springs (rest length 0.2 m) straight through a
-  // fixed sphere of radius 0.5 m around the midpoint's foot: at equilibrium it rests on the sphere, pressed against it.
+namespace {
+
+// A particle hung between two fixed ends 2 m apart by springs of rest length 0.2 m (material constant 1 N), starting
+// 0.8 m above the line between them.
+MassSpringSystem hungParticle() {
   Eigen::Matrix3Xd positions(3, 3);
   positions << -1, 0, 1,  //
       0, 0.8, 0,          //
       0, 0, 0;
   MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
   system.springs.rest_length.setConstant(0.2);
-  system.springs.stiffness.setConstant(5.0);  // material constant 1 N
+  system.springs.stiffness.setConstant(5.0);
   system.is_fixed[0] = system.is_fixed[2] = 1;
+  return system;
+}
+
+}  // namespace
+
+TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
+  // A particle hung between two fixed ends 2 m apart, pulled by its springs (rest length 0.2 m) straight through a
+  // fixed sphere of radius 0.5 m around the midpoint's foot: at equilibrium it rests on the sphere, pressed against it.
+  MassSpringSystem system = hungParticle();
   system.radius.setConstant(0.1);
   const Eigen::Vector3d centre(0, -0.2, 0);
   const double distance = 0.5 + 0.1;  // sphere radius plus the particle's
@@ -181,14 +192,7 @@ TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
 
 TEST(BlockDescent, AHalfSpaceContactHoldsAParticleOnItsPlane) {
   // The same hung particle over a floor (a bone's field linearised): the plane y >= 0.3 holds it pressed on it.
-  Eigen::Matrix3Xd positions(3, 3);
-  positions << -1, 0, 1,  //
-      0, 0.8, 0,          //
-      0, 0, 0;
-  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
-  system.springs.rest_length.setConstant(0.2);
-  system.springs.stiffness.setConstant(5.0);
-  system.is_fixed[0] = system.is_fixed[2] = 1;
+  const MassSpringSystem system = hungParticle();
   BlockDescentSolver solver(system, converging(10000, 1e-9));
   solver.setContactQuery(
       [&](const ParticleState&, double, ContactSet& contacts) {

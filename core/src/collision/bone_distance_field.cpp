@@ -75,6 +75,15 @@ BoneDistanceField::BoneDistanceField(const TriangleMesh& surface, const BoneFiel
 
 BoneDistanceField::~BoneDistanceField() = default;
 
+AlignedBox BoneDistanceField::reachIn(const Eigen::Isometry3d& pose) const {
+  AlignedBox result;
+  for (int corner = 0; corner < 8; ++corner)
+    result.extend(pose * Eigen::Vector3d(corner & 1 ? reach_.max.x() : reach_.min.x(),
+                                         corner & 2 ? reach_.max.y() : reach_.min.y(),
+                                         corner & 4 ? reach_.max.z() : reach_.min.z()));
+  return result;
+}
+
 std::size_t BoneDistanceField::memoryBytes() const { return static_cast<std::size_t>(grid_->grid->memUsage()); }
 
 struct BoneDistanceField::Probe::Impl {

@@ -170,18 +170,9 @@ struct CollisionWorld::Impl {
       field_clearance.push_back(std::move(clearance));
       field_known_at.push_back(std::move(known_at));
       field_known_distance.push_back(std::move(known_distance));
-      field_reach.push_back(transformedBox(bone_fields[b]->reach(), Eigen::Isometry3d::Identity()));
+      field_reach.push_back(bone_fields[b]->reach());
     }
     for (const std::uint8_t c : closer) closer_than_radius_at_rest += c;
-  }
-
-  static AlignedBox transformedBox(const AlignedBox& box, const Eigen::Isometry3d& transform) {
-    AlignedBox result;
-    for (int corner = 0; corner < 8; ++corner)
-      result.extend(transform * Eigen::Vector3d(corner & 1 ? box.max.x() : box.min.x(),
-                                                 corner & 2 ? box.max.y() : box.min.y(),
-                                                 corner & 4 ? box.max.z() : box.min.z()));
-    return result;
   }
 
   // Every free particle within `margin` of its clearance from a bone field: visit(particle, depth, normal) with depth
@@ -390,7 +381,7 @@ void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per
     // Unchanged pose: keep the bone's hierarchy or grid (the seeds never update bone structures within a step).
     if (t.matrix() == w.bone_transform[ub].matrix()) continue;
     w.bone_transform[ub] = t;
-    if (!w.bone_fields.empty()) w.field_reach[ub] = Impl::transformedBox(w.bone_fields[ub]->reach(), t);
+    if (!w.bone_fields.empty()) w.field_reach[ub] = w.bone_fields[ub]->reachIn(t);
     w.bone_world[ub].centre = t * w.bone_rest[ub].centre;
     w.bone_box[ub] = sphereBounds(w.bone_world[ub]);
     w.broad->update(w.muscle_count + b, w.bone_world[ub], true);

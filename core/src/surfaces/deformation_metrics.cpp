@@ -238,11 +238,7 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   for (std::size_t b = 0; b < bone_count; ++b) {
     const Eigen::Isometry3d to_pose = b < bone_transforms.size() ? bone_transforms[b] : Eigen::Isometry3d::Identity();
     to_rest[b] = to_pose.inverse();
-    const AlignedBox& reach = bone_fields_[b]->reach();
-    for (int corner = 0; corner < 8; ++corner)
-      posed_box[b].extend(to_pose * Eigen::Vector3d(corner & 1 ? reach.max.x() : reach.min.x(),
-                                                     corner & 2 ? reach.max.y() : reach.min.y(),
-                                                     corner & 4 ? reach.max.z() : reach.min.z()));
+    posed_box[b] = bone_fields_[b]->reachIn(to_pose);
     probes.push_back(bone_fields_[b]->probe());
   }
 

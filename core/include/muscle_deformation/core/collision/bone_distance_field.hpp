@@ -10,6 +10,7 @@
 #include "muscle_deformation/core/geometry.hpp"
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <algorithm>
 #include <memory>
@@ -71,6 +72,8 @@ class BoneDistanceField {
   static constexpr double kMaxInsideVoxels = 2e6;
   // Rest-frame box of the surface grown by the exterior band: outside it the field reads "far".
   const AlignedBox& reach() const { return reach_; }
+  // The same box around the bone placed by `pose` (rest frame to world), axis-aligned again.
+  AlignedBox reachIn(const Eigen::Isometry3d& pose) const;
   double buildMilliseconds() const { return build_ms_; }
   std::size_t memoryBytes() const;
 
