@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 
 using namespace muscle_deformation;
@@ -254,6 +255,30 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
   EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
   EXPECT_EQ(contacts[0], contacts[1]);
   EXPECT_TRUE((positions[0].array() == positions[1].array()).all());  // bit for bit
+}
+
+TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {
+  const MassSpringSystem system = fixedChain(40);
+  ParticleState start = stateAt(system.rest_position);
+  start.position(0, 40) = 60.0;
+  BlockDescentSettings settings = converging(50, 0);
+  settings.stopping_rule = StoppingRule::iterations;
+  settings.threads = 2;
+  std::atomic<int> cap{0};
+  settings.limits.max_threads = &cap;
+  BlockDescentSolver solver(system, settings);
+  EXPECT_EQ(solver.sweepThreads(), 2);  // 0: no cap
+  cap = 1;
+  EXPECT_EQ(solver.sweepThreads(), 1);
+  cap = 8;
+  EXPECT_EQ(solver.sweepThreads(), 2);  // a cap above the solver's own count changes nothing
+
+  ParticleState capped = start, free_running = start;
+  cap = 1;
+  solver.solve(capped);
+  cap = 0;
+  solver.solve(free_running);
+  EXPECT_TRUE((capped.position.array() == free_running.position.array()).all());  // bit for bit
 }
 
 TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {

@@ -11,9 +11,22 @@
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <thread>
 
 namespace muscle_deformation::node {
 namespace {
+
+// Sets a thread cap for as long as it lives, and lifts it however the scope is left.
+class ThreadCapHold {
+ public:
+  ThreadCapHold(std::atomic<int>& cap, int threads) : cap_(cap) { cap_ = threads; }
+  ~ThreadCapHold() { cap_ = 0; }
+  ThreadCapHold(const ThreadCapHold&) = delete;
+  ThreadCapHold& operator=(const ThreadCapHold&) = delete;
+
+ private:
+  std::atomic<int>& cap_;
+};
 
 std::string packageRoot() {
   const std::string root = ros::package::getPath("muscle_deformation");
@@ -81,6 +94,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   SolveLimits limits;
   limits.wall_time_limit_ms = 1000.0 * settings_.max_solve_time_s;
   limits.cancel = &shutting_down_;
+  limits.max_threads = &stream_thread_cap_;
   settings_.pipeline.simulation.solver.limits = limits;
   shareStoppingRule(settings_.pipeline.simulation);
   std::string urdf;
@@ -588,6 +602,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     }
     if (!cold_reason.empty()) pipeline.reset();
   }
+  // The stream leaves this call a core while it solves (the default block descent stream otherwise takes them all);
+  // put back whatever way the solve ends.
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const ThreadCapHold stream_cap(stream_thread_cap_, std::max(1, cores - 1));
   const PipelineFrame& frame = pipeline.solve(transforms, request.warm_start && cold_reason.empty() ? StartMode::warm
                                                                                                : StartMode::cold,
                                               true, pipeline.metrics() != nullptr);
@@ -624,7 +642,12 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
             << (frame.solve.warm_started ? "warm start from this client's previous call" : "cold start");
     if (!cold_reason.empty()) message << "; warm start refused: " << cold_reason;
     message << ")";
-    if (solve.converged)
+    if (solve.converged && solve.no_descent_left)
+      message << "; converged (no step lowers the energy any more: a minimum within the contacts)";
+    else if (solve.converged && rule == StoppingRule::force_residual)
+      message << "; converged (force residual below " << settings_.pipeline.simulation.block_descent.residual_tolerance
+              << " of the springs' material constant)";
+    else if (solve.converged)
       message << "; converged (mean step below " << tolerance_m << " m)";
     else if (solve.time_limit_reached)
       message << "; not converged: stopped at the time limit of " << limits.wall_time_limit_ms << " ms ("

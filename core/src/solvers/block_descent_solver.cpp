@@ -313,9 +313,16 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
   }
 }
 
+int BlockDescentSolver::sweepThreads() const {
+  if (settings_.limits.max_threads == nullptr) return thread_count_;
+  const int cap = settings_.limits.max_threads->load(std::memory_order_relaxed);
+  return cap > 0 ? std::min(cap, thread_count_) : thread_count_;
+}
+
 void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum,
                                bool touching_only) {
   const int colours = colourCount();
+  const int threads = sweepThreads();
   // Partners of a muscle-muscle contact may share a colour (no spring joins them): they are read from a copy taken
   // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
   // as if the other stood still, and together would overshoot the overlap twice (and chatter); doubling the contact's
@@ -329,7 +336,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         if (entry.partner >= 0) entry.centre = position.col(entry.partner);
       }
     }
-#pragma omp parallel for num_threads(thread_count_) schedule(static)
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (std::int32_t k = begin; k < end; ++k) {
       const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
       const double kc = particle_contact_stiffness_[p];

@@ -500,7 +500,7 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       stats.mean_displacement_m = 0;
       stats.mss_ms += millisecondsSince(mss_start);
       stats.stopping_rule_met = settings_.stopping_rule != StoppingRule::time_budget;
-      stats.converged = true;  // a minimum (of what the hook allows)
+      stats.converged = stats.no_descent_left = true;  // a minimum (of what the hook allows)
       return;
     }
     free_previous_.swap(free_current_);
@@ -654,7 +654,7 @@ SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stat
   }
   // The quasi-static result is an equilibrium: leave it at rest.
   if (settings_.quasi_static) state.previous_position = state.position;
-  if (stats.diverged) stats.converged = false;
+  if (stats.diverged) stats.converged = stats.no_descent_left = false;
   if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
       !stats.cancelled)
     stats.stopping_rule_met = true;

@@ -105,6 +105,9 @@ class MuscleDeformationNode {
 
   // Raised at shutdown: every running solve ends after its current iteration.
   std::atomic<bool> shutting_down_{false};
+  // The stream's solver threads while a service call solves (0 = no cap): the call keeps one core, so that neither
+  // solve's threads wait at barriers for a descheduled partner.
+  std::atomic<int> stream_thread_cap_{0};
 
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;

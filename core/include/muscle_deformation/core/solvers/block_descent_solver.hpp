@@ -91,6 +91,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   const BlockDescentSettings& settings() const { return settings_; }
   int colourCount() const { return static_cast<int>(colour_begin_.size()) - 1; }
   int threadCount() const { return thread_count_; }
+  // Threads of the next sweep: threadCount() within the cap of SolveLimits::max_threads.
+  int sweepThreads() const;
   double materialConstant() const { return material_constant_n_; }
   double contactStiffness() const { return contact_stiffness_; }  // the floor; per particle it may be higher
   // Relative RMS residual of the last sweep of the last solve (forces when each particle was visited).

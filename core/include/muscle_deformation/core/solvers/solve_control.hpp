@@ -30,6 +30,10 @@ enum class StoppingRule {
 struct SolveLimits {
   double wall_time_limit_ms = 0;            // 0 = no ceiling
   const std::atomic<bool>* cancel = nullptr;  // when set and raised, the solve stops after the current iteration
+  // When set and positive, the solve's parallel parts use at most this many threads, read before every sweep: another
+  // solve in the process (the node's service beside its stream) holds the other cores. Threads outnumbering the free
+  // cores wait at every barrier of a sweep for one that is descheduled, and a frame takes many times longer.
+  const std::atomic<int>* max_threads = nullptr;
 };
 
 // The seeds' stopping rules, evaluated after every iteration; shared by the solvers so they stop alike.
@@ -59,6 +63,9 @@ struct SolveStats {
   // A convergence criterion was met: the displacement rule's tolerance, or (L-BFGS) no descent left. Running out of
   // iterations or time is never convergence, whatever the rule.
   bool converged = false;
+  // L-BFGS: no step along the search direction lowers the energy at machine precision, whatever the stopping rule: the
+  // solve is at a minimum (of what the collision hook allows) and says so as convergence.
+  bool no_descent_left = false;
   bool time_limit_reached = false;    // SolveLimits::wall_time_limit_ms ended the solve
   bool cancelled = false;             // SolveLimits::cancel ended the solve
   double mss_ms = 0;                  // time in spring forces and integration
