@@ -36,6 +36,19 @@ SmallScene spindleBetweenPlates() {
   return scene;
 }
 
+// The bone a particle is attached to: its own if fixed, else the bone of a tendon anchor a spring joins it to, else
+// kNoBone.
+int attachmentBoneOf(const MassSpringSystem& system, Eigen::Index particle) {
+  if (system.is_fixed[static_cast<std::size_t>(particle)]) return system.fixed_bone[static_cast<std::size_t>(particle)];
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
+    const std::int32_t other = a == particle ? b : b == particle ? a : -1;
+    if (other >= 0 && system.fibre_of[static_cast<std::size_t>(other)] == kTendonAnchor)
+      return system.fixed_bone[static_cast<std::size_t>(other)];
+  }
+  return kNoBone;
+}
+
 ModelSettings smallSettings() {
   ModelSettings settings;
   settings.particles_per_fibre = 10;
@@ -49,17 +62,23 @@ TEST(ModelBuilder, BuildsParticlesForEveryFibre) {
   const SmallScene scene = spindleBetweenPlates();
   ModelBuildReport report;
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
-  EXPECT_EQ(system.particleCount(), 16 * 10);
-  EXPECT_EQ(system.muscle_begin, (std::vector<std::int32_t>{0, 160}));
   ASSERT_EQ(report.muscles.size(), 1u);
-  EXPECT_EQ(report.muscles[0].particles, 160);
+  // 16 fibres of 10 particles, then one anchor per fibre end joined to its bone through a tendon.
+  const int tendons = report.muscles[0].tendons;
+  EXPECT_EQ(system.particleCount(), 16 * 10 + tendons);
+  EXPECT_EQ(system.muscle_begin, (std::vector<std::int32_t>{0, 160 + tendons}));
+  EXPECT_EQ(report.muscles[0].particles, 160 + tendons);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
+    EXPECT_EQ(system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor, i >= 160) << i;
   EXPECT_EQ(report.muscles[0].springs, static_cast<int>(system.springs.size()));
   EXPECT_GT(report.muscles[0].volume_m3, 0);
 }
 
 TEST(ModelBuilder, FibreEndsAreFixedToTheNearestBone) {
   const SmallScene scene = spindleBetweenPlates();
-  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  ModelSettings settings = smallSettings();
+  settings.tendons = false;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings);
   for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
     if (system.sample_of[i] == 0) {
       EXPECT_TRUE(system.is_fixed[i]);
@@ -69,6 +88,61 @@ TEST(ModelBuilder, FibreEndsAreFixedToTheNearestBone) {
       EXPECT_EQ(system.fixed_bone[i], 1);
     }
   }
+}
+
+TEST(ModelBuilder, AFibreEndAwayFromItsBoneHangsFromItThroughATendon) {
+  const SmallScene scene = spindleBetweenPlates();
+  ModelSettings settings = smallSettings();
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
+  ASSERT_EQ(report.muscles.size(), 1u);
+  // The last particle of a fibre lies up to one sampling interval (2.2 cm here) short of the fibre's end, the first
+  // at it: 1 mm from the lower plate. Ends within attachment_distance_m are fixed in place, the others hang from
+  // their plate through a tendon.
+  int tendons = 0, fixed_in_place = 0;
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const int sample = system.sample_of[i];
+    if (system.fibre_of[i] == kTendonAnchor || (sample != 0 && sample != 9)) continue;
+    const int expected_bone = sample == 0 ? 0 : 1;
+    const SurfaceDistance plate(scene.bones[expected_bone].surface.vertices, scene.bones[expected_bone].surface.triangles);
+    const double distance = plate.distance(system.rest_position.col(i));
+    if (distance <= settings.attachment_distance_m) {
+      EXPECT_TRUE(system.is_fixed[i]) << i;
+      EXPECT_EQ(system.fixed_bone[i], expected_bone) << i;
+      ++fixed_in_place;
+      continue;
+    }
+    EXPECT_FALSE(system.is_fixed[i]) << i;
+    int anchors = 0;
+    for (std::size_t s = 0; s < system.springs.size(); ++s) {
+      const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
+      const std::int32_t anchor = a == i ? b : b == i ? a : -1;
+      if (anchor < 0 || system.fibre_of[static_cast<std::size_t>(anchor)] != kTendonAnchor) continue;
+      ++anchors;
+      EXPECT_TRUE(system.is_fixed[static_cast<std::size_t>(anchor)]);
+      EXPECT_EQ(system.fixed_bone[static_cast<std::size_t>(anchor)], expected_bone);
+      EXPECT_EQ(system.muscle_of[static_cast<std::size_t>(anchor)], 0);
+      // The anchor is a vertex of the plate, and the tendon's rest length is what separates them at rest.
+      EXPECT_LT(plate.distance(system.rest_position.col(anchor)), 1e-12);
+      const double length = (system.rest_position.col(anchor) - system.rest_position.col(i)).norm();
+      EXPECT_DOUBLE_EQ(system.springs.rest_length[static_cast<Eigen::Index>(s)], length);
+      EXPECT_GE(length, distance);
+      EXPECT_DOUBLE_EQ(system.springs.stiffness[static_cast<Eigen::Index>(s)], settings.spring_material_n / length);
+    }
+    EXPECT_EQ(anchors, 1) << "fibre end " << i;
+    ++tendons;
+  }
+  EXPECT_GT(fixed_in_place, 0);
+  EXPECT_GT(tendons, 0);
+  EXPECT_EQ(report.muscles[0].tendons, tendons);
+  EXPECT_GT(report.muscles[0].longest_tendon_m, settings.attachment_distance_m);
+  // No fibre runs through the anchors.
+  std::size_t fibre_particles = 0;
+  for (const Eigen::Matrix3Xd& fibre : fibrePolylines(system, system.rest_position)) {
+    EXPECT_EQ(fibre.cols(), 10);
+    fibre_particles += static_cast<std::size_t>(fibre.cols());
+  }
+  EXPECT_EQ(fibre_particles, 160u);
 }
 
 TEST(ModelBuilder, ParticlesCloseToABoneAreFixedToIt) {
@@ -131,8 +205,9 @@ TEST(ModelBuilder, FibreStartsAreFixedToTheOriginAndEndsToTheInsertionAndARevers
   ModelBuildReport report;
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
   for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
-    if (system.sample_of[i] == 0) EXPECT_EQ(system.fixed_bone[i], 1) << i;
-    if (system.sample_of[i] == 9) EXPECT_EQ(system.fixed_bone[i], 0) << i;
+    if (system.fibre_of[i] == kTendonAnchor) continue;
+    if (system.sample_of[i] == 0) EXPECT_EQ(attachmentBoneOf(system, i), 1) << i;
+    if (system.sample_of[i] == 9) EXPECT_EQ(attachmentBoneOf(system, i), 0) << i;
   }
   ASSERT_EQ(report.warnings.size(), 1u);
   EXPECT_CONTAINS(report.warnings[0], "muscle 'spindle': 16 of 16 fibres start nearer its insertion bone 'lower'");

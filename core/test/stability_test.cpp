@@ -35,6 +35,9 @@ SimulationSettings smallSettings() {
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
   settings.solver.max_iterations = 100;  // the node's default
+  // The fixture's muscles end beside their bones by construction, to be fixed there: these cases test the solver on
+  // that model (the tendon model's hard cases are measured on the bundled scene by the stability benchmark).
+  settings.model.tendons = false;
   return settings;
 }
 

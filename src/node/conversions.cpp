@@ -153,6 +153,7 @@ visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, 
     for (std::int32_t i = begin; i + 1 < end; ++i) {
       const auto next = static_cast<std::size_t>(i) + 1;
       if (system.fibre_of[next] != system.fibre_of[static_cast<std::size_t>(i)]) continue;  // next fibre starts
+      if (system.fibre_of[next] == kTendonAnchor) continue;  // tendons' bone ends: no fibre joins them
       marker.points.push_back(pointOf(positions.col(i)));
       marker.points.push_back(pointOf(positions.col(i + 1)));
       if (colour_by_strain) {

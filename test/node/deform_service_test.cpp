@@ -1,4 +1,6 @@
 // ~deform_pose of a running muscle_deformation_node (started by deform_service.test with a real roscore).
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 
 #include <muscle_deformation/DeformPose.h>
@@ -24,6 +26,7 @@ struct Expectations {
   md::Skeleton skeleton;
   md::Scene scene;
   int particles_per_fibre = 20;
+  std::size_t particles = 0;  // of the node's model: fibre particles and tendon anchors
   std::string fixed_frame;
   std::string hip_joint, knee_joint;
   double knee_flexion_sign = -1;
@@ -83,7 +86,7 @@ TEST(DeformPoseService, ValidPoseReturnsEveryMuscleWithTheExpectedCountsAndFinit
   const std::size_t muscles = scene.muscles.size();
   ASSERT_EQ(response.surfaces.muscles.size(), muscles) << response.message;
   ASSERT_EQ(response.fibres.markers.size(), muscles);
-  std::size_t expected_particles = 0;
+  std::size_t fibre_particles = 0;
   for (std::size_t m = 0; m < muscles; ++m) {
     const md::Muscle& muscle = scene.muscles[m];
     const md::MuscleSurface& surface = response.surfaces.muscles[m];
@@ -98,10 +101,15 @@ TEST(DeformPoseService, ValidPoseReturnsEveryMuscleWithTheExpectedCountsAndFinit
                                                                                << " fibres";
     for (const geometry_msgs::Point& p : response.fibres.markers[m].points)
       ASSERT_TRUE(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) << muscle.name;
-    expected_particles += fibres * static_cast<std::size_t>(expectations->particles_per_fibre);
+    fibre_particles += fibres * static_cast<std::size_t>(expectations->particles_per_fibre);
   }
   const std::vector<Particle> particles = particlesOf(response.particles);
-  EXPECT_EQ(particles.size(), expected_particles);
+  EXPECT_EQ(particles.size(), expectations->particles);
+  // Every fibre particle, and the tendon anchors (fixed to a bone) beyond them.
+  EXPECT_GE(particles.size(), fibre_particles);
+  std::size_t fixed = 0;
+  for (const Particle& p : particles) fixed += p.bone >= 0;
+  EXPECT_GE(fixed, particles.size() - fibre_particles);
   for (const Particle& p : particles) ASSERT_TRUE(p.position.allFinite());
   EXPECT_TRUE(response.stats.finite);
   EXPECT_GT(response.stats.iterations, 0);
@@ -224,6 +232,11 @@ int main(int argc, char** argv) {
   const md::SceneDescription description = md::loadSceneDescription(scene_path);
   loaded.scene = md::loadScene(description, loaded.skeleton,
                                md::makeUriResolver({{"muscle_deformation", package_root}}, package_root));
+  // The node's model at its defaults (the launch file loads the documented ones) and this particles_per_fibre.
+  md::ModelSettings model = md::nodeDefaultSettings().pipeline.simulation.model;
+  model.particles_per_fibre = loaded.particles_per_fibre;
+  loaded.particles =
+      static_cast<std::size_t>(md::buildMassSpringSystem(loaded.scene.muscles, loaded.scene.bones, model).particleCount());
   expectations = &loaded;
   if (!ros::service::waitForService(kService, ros::Duration(300))) {
     ADD_FAILURE() << kService << " did not appear within 300 s";

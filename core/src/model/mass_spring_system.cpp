@@ -18,7 +18,7 @@ std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, con
     const bool fibre_ends = i == system.particleCount() || system.fibre_of[i] != system.fibre_of[i - 1] ||
                             system.muscle_of[i] != system.muscle_of[i - 1];
     if (!fibre_ends) continue;
-    fibres.push_back(position.middleCols(begin, i - begin));
+    if (system.fibre_of[begin] != kTendonAnchor) fibres.push_back(position.middleCols(begin, i - begin));
     begin = i;
   }
   return fibres;

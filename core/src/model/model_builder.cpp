@@ -165,6 +165,106 @@ void findClosestAttachments(const MassSpringSystem& system, Eigen::Index offset,
   }
 }
 
+// A fibre end to be joined to its bone through a tendon (global particle index before the anchors are inserted).
+struct PendingTendon {
+  std::int32_t particle;
+  int bone;
+};
+
+// Inserts each tendon's anchor, a particle fixed to the bone at the bone vertex nearest the fibre end, after its
+// muscle's particles (muscle ranges stay contiguous), renumbers `spring_pairs` and adds one spring per tendon.
+void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTendon>& tendons,
+                         const std::vector<Bone>& bones, const BoneQueries& queries,
+                         std::vector<std::pair<std::int32_t, std::int32_t>>& spring_pairs,
+                         std::vector<double>& spring_rest, ModelBuildReport& report) {
+  if (tendons.empty()) return;
+  const int muscle_count = system.muscleCount();
+  std::vector<std::vector<PendingTendon>> by_muscle(static_cast<std::size_t>(muscle_count));
+  for (const PendingTendon& t : tendons)
+    by_muscle[static_cast<std::size_t>(system.muscle_of[static_cast<std::size_t>(t.particle)])].push_back(t);
+  // A particle of muscle m moves up by the anchors of the muscles before it.
+  std::vector<std::int32_t> shift(static_cast<std::size_t>(muscle_count) + 1, 0);
+  for (std::size_t m = 0; m < by_muscle.size(); ++m)
+    shift[m + 1] = shift[m] + static_cast<std::int32_t>(by_muscle[m].size());
+  const auto newIndex = [&](std::int32_t old) {
+    return old + shift[static_cast<std::size_t>(system.muscle_of[static_cast<std::size_t>(old)])];
+  };
+
+  for (auto& [first, second] : spring_pairs) {
+    first = newIndex(first);
+    second = newIndex(second);
+  }
+  const Eigen::Index count = system.particleCount() + static_cast<Eigen::Index>(tendons.size());
+  const auto size = static_cast<std::size_t>(count);
+  MassSpringSystem grown;
+  grown.rest_position.resize(3, count);
+  grown.mass.resize(count);
+  grown.radius.setZero(count);
+  grown.is_fixed.assign(size, 0);
+  grown.is_boundary.assign(size, 0);
+  grown.fixed_bone.assign(size, kNoBone);
+  grown.muscle_of.assign(size, 0);
+  grown.fibre_of.assign(size, 0);
+  grown.sample_of.assign(size, 0);
+  grown.blend_bone.setConstant(MassSpringSystem::kBlendBones, count, kNoBone);
+  grown.blend_weight.setZero(MassSpringSystem::kBlendBones, count);
+  grown.muscle_name = system.muscle_name;
+  grown.muscle_begin.assign(static_cast<std::size_t>(muscle_count) + 1, 0);
+  const auto copyParticle = [&](Eigen::Index from, Eigen::Index to) {
+    const auto f = static_cast<std::size_t>(from), t = static_cast<std::size_t>(to);
+    grown.rest_position.col(to) = system.rest_position.col(from);
+    grown.mass[to] = system.mass[from];
+    grown.radius[to] = system.radius[from];
+    grown.is_fixed[t] = system.is_fixed[f];
+    grown.is_boundary[t] = system.is_boundary[f];
+    grown.fixed_bone[t] = system.fixed_bone[f];
+    grown.muscle_of[t] = system.muscle_of[f];
+    grown.fibre_of[t] = system.fibre_of[f];
+    grown.sample_of[t] = system.sample_of[f];
+    grown.blend_bone.col(to) = system.blend_bone.col(from);
+    grown.blend_weight.col(to) = system.blend_weight.col(from);
+  };
+  for (int m = 0; m < muscle_count; ++m) {
+    const auto mi = static_cast<std::size_t>(m);
+    const std::int32_t begin = system.muscle_begin[mi], end = system.muscle_begin[mi + 1];
+    grown.muscle_begin[mi] = begin + shift[mi];
+    for (std::int32_t i = begin; i < end; ++i) copyParticle(i, i + shift[mi]);
+    std::int32_t anchor = end + shift[mi];
+    MuscleBuildSummary* summary = mi < report.muscles.size() ? &report.muscles[mi] : nullptr;
+    for (const PendingTendon& t : by_muscle[mi]) {
+      const Eigen::Vector3d fibre_end = system.rest_position.col(t.particle);
+      const auto b = static_cast<std::size_t>(t.bone);
+      const Eigen::Vector3d on_bone = bones[b].surface.vertices.col(queries.vertices[b].nearest(fibre_end).first);
+      const auto a = static_cast<std::size_t>(anchor);
+      grown.rest_position.col(anchor) = on_bone;
+      grown.mass[anchor] = system.mass[t.particle];  // never integrated: fixed
+      grown.is_fixed[a] = 1;
+      grown.fixed_bone[a] = t.bone;
+      grown.muscle_of[a] = m;
+      grown.fibre_of[a] = kTendonAnchor;
+      grown.sample_of[a] = system.fibre_of[static_cast<std::size_t>(t.particle)];  // the fibre it ends
+      grown.blend_bone(0, anchor) = t.bone;
+      grown.blend_weight(0, anchor) = 1.0;
+      const double length = (fibre_end - on_bone).norm();
+      if (length > 1e-9) {
+        spring_pairs.emplace_back(newIndex(t.particle), anchor);
+        spring_rest.push_back(length);
+        if (summary) ++summary->springs;
+      }
+      if (summary) {
+        ++summary->tendons;
+        ++summary->particles;
+        ++summary->fixed_particles;
+        ++summary->fixed_by_bone[bones[b].name];
+        summary->longest_tendon_m = std::max(summary->longest_tendon_m, length);
+      }
+      ++anchor;
+    }
+  }
+  grown.muscle_begin.back() = static_cast<std::int32_t>(count);
+  system = std::move(grown);
+}
+
 }  // namespace
 
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
@@ -220,6 +320,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
 
   std::vector<std::pair<std::int32_t, std::int32_t>> spring_pairs;
   std::vector<double> spring_rest;
+  std::vector<PendingTendon> tendons;
   Eigen::Index offset = 0;
   for (std::size_t m = 0; m < muscles.size(); ++m) {
     const Muscle& muscle = muscles[m];
@@ -295,6 +396,11 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
             }
           }
         }
+        // Not within attachment_distance_m of that bone (the loop above would have found it): joined by a tendon.
+        if (settings.tendons && attached != kNoBone) {
+          tendons.push_back({static_cast<std::int32_t>(i), attached});
+          attached = kNoBone;
+        }
       }
       if (attached != kNoBone) {
         system.is_fixed[i] = 1;
@@ -363,6 +469,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     out.muscles.push_back(summary);
   }
 
+  insertTendonAnchors(system, tendons, bones, bone_queries, spring_pairs, spring_rest, out);
   const std::size_t spring_count = spring_pairs.size();
   system.springs.first.resize(spring_count);
   system.springs.second.resize(spring_count);

@@ -83,6 +83,10 @@ std::vector<SettingSpec> buildTable() {
       boolean("fix_fibre_ends",
               "a fibre's first particle is fixed to its muscle's origin bone, its last to the insertion bone",
               [model](CoreSettings& s) -> bool& { return model(s).fix_fibre_ends; }),
+      boolean("tendons",
+              "a fibre end further than attachment_distance_m from its bone is joined to the bone by a tendon spring "
+              "instead of being fixed where it lies",
+              [model](CoreSettings& s) -> bool& { return model(s).tendons; }),
       number("spring_material_n", "N", 1e-9, 1e9, "spring stiffness is this divided by the rest length",
              [model](CoreSettings& s) -> double& { return model(s).spring_material_n; }),
       number("density_kg_per_m3", "kg/m^3", 1e-6, 1e6, "muscle density, for the particle masses",

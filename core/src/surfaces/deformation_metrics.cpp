@@ -195,13 +195,16 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
   }
   // Fibres: consecutive particles of one fibre of one muscle (as fibrePolylines).
   const Eigen::Index n = system.particleCount();
-  fibre_begin_.push_back(0);
+  particle_count_ = n;
+  Eigen::Index first = 0;
   for (Eigen::Index i = 1; i <= n; ++i)
     if (i == n || system.fibre_of[i] != system.fibre_of[i - 1] || system.muscle_of[i] != system.muscle_of[i - 1]) {
-      fibre_muscle_.push_back(system.muscle_of[i - 1]);
-      fibre_begin_.push_back(i);
+      if (system.fibre_of[first] != kTendonAnchor) {
+        fibre_muscle_.push_back(system.muscle_of[i - 1]);
+        fibre_range_.emplace_back(first, i);
+      }
+      first = i;
     }
-  if (n == 0) fibre_begin_.assign(1, 0);
   // With unit rest lengths the ratios are the rest lengths themselves.
   fibre_rest_length_ = Eigen::VectorXd::Ones(static_cast<Eigen::Index>(fibre_muscle_.size()));
   fibre_rest_length_ = fibreLengthRatios(system.rest_position);
@@ -213,7 +216,7 @@ Eigen::VectorXd DeformationMetrics::fibreLengthRatios(const Eigen::Matrix3Xd& pa
   Eigen::VectorXd ratios(static_cast<Eigen::Index>(fibre_muscle_.size()));
   for (std::size_t f = 0; f < fibre_muscle_.size(); ++f) {
     double length = 0;
-    for (Eigen::Index i = fibre_begin_[f] + 1; i < fibre_begin_[f + 1]; ++i)
+    for (Eigen::Index i = fibre_range_[f].first + 1; i < fibre_range_[f].second; ++i)
       length += (particle_positions.col(i) - particle_positions.col(i - 1)).norm();
     ratios[static_cast<Eigen::Index>(f)] = length / fibre_rest_length_[static_cast<Eigen::Index>(f)];
   }
@@ -226,9 +229,9 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   if (surfaces.size() != muscle_names_.size())
     throw MetricsError("metrics: " + std::to_string(surfaces.size()) + " deformed surfaces for " +
                        std::to_string(muscle_names_.size()) + " muscles");
-  if (particle_positions.cols() != (fibre_begin_.empty() ? 0 : fibre_begin_.back()))
+  if (particle_positions.cols() != particle_count_)
     throw MetricsError("metrics: " + std::to_string(particle_positions.cols()) + " particle positions, the system has " +
-                       std::to_string(fibre_begin_.back()));
+                       std::to_string(particle_count_));
   // Test a vertex against a posed bone by taking it back into the bone's rest frame; only vertices within the bone's
   // box can be inside it.
   const std::size_t bone_count = bone_fields_.size();

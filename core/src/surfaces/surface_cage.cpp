@@ -164,6 +164,7 @@ bool fibreTubeCage(const MassSpringSystem& system, int muscle, ParticleCage& cag
   };
   std::vector<Fibre> fibres;
   for (Eigen::Index i = begin; i < end; ++i) {
+    if (system.fibre_of[i] == kTendonAnchor) continue;  // a tendon's bone end: no sample of any fibre
     if (i == begin || system.fibre_of[i] != system.fibre_of[i - 1]) fibres.push_back({i - begin, 0, false});
     fibres.back().count += 1;
     fibres.back().boundary = fibres.back().boundary || system.is_boundary[i];

@@ -13,6 +13,8 @@
 namespace muscle_deformation {
 
 constexpr int kNoBone = -1;
+// fibre_of of a tendon's bone end: a particle fixed to a bone that belongs to no fibre (see ModelSettings::tendons).
+constexpr int kTendonAnchor = -1;
 
 struct SpringSet {
   std::vector<std::int32_t> first;   // particle index
@@ -32,7 +34,7 @@ struct MassSpringSystem {
   std::vector<std::uint8_t> is_boundary; // 1: on a fibre nearest the surface; takes part in collision
   std::vector<std::int32_t> fixed_bone;  // bone index for fixed particles, kNoBone otherwise
   std::vector<std::int32_t> muscle_of;   // muscle index of each particle
-  std::vector<std::int32_t> fibre_of;    // fibre index within its muscle
+  std::vector<std::int32_t> fibre_of;    // fibre index within its muscle; kTendonAnchor for a tendon's bone end
   std::vector<std::int32_t> sample_of;   // position along the fibre, 0 = fibre start
 
   // Rigid pre-transform weights: each particle follows a blend of up to kBlendBones bones.
@@ -56,7 +58,8 @@ struct ParticleState {
   Eigen::Matrix3Xd previous_position = Eigen::Matrix3Xd(3, 0);  // Verlet: velocity = (x - x_prev) / dt
 };
 
-// The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order).
+// The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
+// anchors left out.
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
 
 }  // namespace muscle_deformation

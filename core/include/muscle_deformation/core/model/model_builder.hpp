@@ -26,6 +26,11 @@ struct ModelSettings {
                                            // surface are fixed to it (near any other bone they collide)
   bool fix_fibre_ends = true;              // first particle of every fibre fixed to the muscle's origin bone, last
                                            // to its insertion bone (fibres run origin to insertion)
+  // A fibre end further than attachment_distance_m from its bone is joined to the bone's nearest surface point by a
+  // tendon (a spring to a particle fixed there) instead of being fixed where it lies: the segmented bellies of long
+  // muscles end centimetres from their bones (hamstrings ~10 cm above the tibia, tensor fasciae latae 34 cm), and a
+  // point fixed that far from a bone swings with the bone's rotation like the end of a rigid lever.
+  bool tendons = true;
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
@@ -46,8 +51,10 @@ struct MuscleBuildSummary {
   int skipped_fibres = 0;   // too short or non-finite, left out
   int particles = 0;
   int boundary_particles = 0;
-  int fixed_particles = 0;
-  int springs = 0;
+  int fixed_particles = 0;  // tendon anchors included, fibre ends joined through a tendon not
+  int tendons = 0;          // fibre ends joined to their bone through a tendon (ModelSettings::tendons)
+  double longest_tendon_m = 0;
+  int springs = 0;          // tendons included
   int dropped_springs = 0;  // joined coincident particles (zero rest length)
   double mean_radius_m = 0; // mean collision sphere radius of the boundary particles
   double volume_m3 = 0;
@@ -72,7 +79,10 @@ struct ModelBuildReport {
 // that is not in `bones`). Bones may be empty (fibre ends are then fixed in space). Attachments follow the anatomy: a
 // particle is fixed only to its muscle's origin or insertion bone (Muscle::origin_bone, insertion_bone; any bone when
 // the muscle names neither) and collides with the others; a fibre's first particle goes to the origin and its last to
-// the insertion (fix_fibre_ends). The report warns, naming the muscle, when particles fixed to two bones lie closer
+// the insertion (fix_fibre_ends), through a tendon when it lies further than attachment_distance_m from its bone
+// (ModelSettings::tendons): the tendon's bone end is a particle fixed to the bone (fibre_of kTendonAnchor, stored
+// after its muscle's fibre particles), joined to the fibre end by one spring of the muscle's material whose rest
+// length is their rest distance. The report warns, naming the muscle, when particles fixed to two bones lie closer
 // than kCloseAttachmentsWarningM at rest, and when most fibres run from the insertion to the origin bone. Boundary
 // particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,

@@ -107,8 +107,9 @@ class DeformationMetrics {
   std::vector<Triangles> muscle_triangles_;
   std::vector<double> rest_volume_;
   std::vector<double> volume_sign_;  // -1 for muscles whose triangles wind inwards
-  // Fibres: particle ranges [fibre_begin_[f], fibre_begin_[f + 1]), the muscle of each, rest lengths.
-  std::vector<Eigen::Index> fibre_begin_;
+  // Fibres: particle ranges [first, end) (tendon anchors belong to none), the muscle of each, rest lengths.
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> fibre_range_;
+  Eigen::Index particle_count_ = 0;
   std::vector<int> fibre_muscle_;
   Eigen::VectorXd fibre_rest_length_;
 };
