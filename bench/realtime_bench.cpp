@@ -94,10 +94,10 @@ BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockD
 Measured measured(MuscleSimulation& simulation, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
                   BlockDescentSolver& yardstick) {
   Measured m;
-  m.frame_ms = stats.solve.total_ms;
+  m.frame_ms = stats.solver.total_ms;
   m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference);
   m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
-  m.iterations = stats.solve.iterations;
+  m.iterations = stats.solver.iterations;
   m.residual = yardstick.residualOf(simulation.state());
   return m;
 }
@@ -221,7 +221,7 @@ int main(int argc, char** argv) {
         transforms.push_back(boneTransformsOf(simulation.bones(), gaitPose(bundled, f)));
         const FrameStats stats = simulation.solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm);
         reference.push_back(simulation.state().position);
-        reference_residuals.push_back(stats.solve.residual);
+        reference_residuals.push_back(stats.solver.residual);
       }
       // How settled the references are: a few frames given as many sweeps again.
       for (const std::size_t f : {frame_count / 4, frame_count / 2, (3 * frame_count) / 4}) {
@@ -271,7 +271,7 @@ int main(int argc, char** argv) {
       for (const std::size_t f : poses) {
         const FrameStats stats = simulation.solve(gaitPose(bundled, f), StartMode::cold);
         cold_reference.push_back(simulation.state().position);
-        residuals.push_back(stats.solve.residual);
+        residuals.push_back(stats.solver.residual);
       }
       records.begin();
       records.add("scene", scene_name);

@@ -107,7 +107,7 @@ int main(int argc, char** argv) {
   const Pose pose = syntheticThighPose(0.6, 0.9);
   const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
   const FrameStats frame = simulation.solve(pose, StartMode::cold);
-  SolveStats stats = frame.solve;  // the solve behind the surfaces being recorded
+  SolveStats stats = frame.solver;  // the solve behind the surfaces being recorded
   const ParticleState& state = simulation.state();
   std::printf("\nscene: %ld particles, solve %d iterations (%s), %.0f ms, with sphere collision (%d contacts left)\n",
               static_cast<long>(system.particleCount()), stats.iterations, stats.stopping_rule_met ? "converged" : "cap",
@@ -170,9 +170,9 @@ int main(int argc, char** argv) {
     scene_label = "bundled right_hip_thigh (26 muscles)";
     pose_label = "hip_flexion_r 0.5 rad, knee_angle_r -1.0 rad";
     std::printf("\nbundled scene: %ld particles, cold solve %d iterations, %.0f ms, with sphere collision\n",
-                static_cast<long>(bundled_simulation.system().particleCount()), bundled_frame.solve.iterations,
-                bundled_frame.solve.total_ms);
-    stats = bundled_frame.solve;
+                static_cast<long>(bundled_simulation.system().particleCount()), bundled_frame.solver.iterations,
+                bundled_frame.solver.total_ms);
+    stats = bundled_frame.solver;
     for (const Variant& variant : variants()) {
       const SurfaceSkinning skinning(bundled_simulation.system(), bundled.muscles, variant.settings);
       std::vector<Vertices> surfaces;

@@ -479,7 +479,7 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
       const Pose pose = gaitPose(bundled, frame);
       const FrameStats stats = stream.solve(pose, StartMode::warm);
       if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
-      solve_ms_sum += stats.solve.total_ms;
+      solve_ms_sum += stats.solver.total_ms;
       const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), pose);
       CollisionWorld& world = model.world(BroadPhaseKind::octree);
       world.setBoneTransforms(transforms);
@@ -491,7 +491,7 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
                 solver == SolverKind::verlet ? kAutoStepFraction : 0, "octree", "warm", 0, model.particles_per_fibre,
                 frame);
       records.add("iterations", iterations_per_frame);
-      records.add("wall_ms", stats.solve.total_ms);
+      records.add("wall_ms", stats.solver.total_ms);
       addMetrics(records, metrics);
       records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
       records.add("lbfgs_history", lbfgs_history);

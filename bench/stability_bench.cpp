@@ -45,7 +45,7 @@ double medianSphereRadius(const MassSpringSystem& system) {
 }
 
 bool statsFinite(const FrameStats& stats) {
-  const SolveStats& s = stats.solve;
+  const SolveStats& s = stats.solver;
   const CollisionStats& c = stats.collision;
   for (const double v : {s.mss_ms, s.collision_ms, s.total_ms, s.last_dt_s, s.mean_displacement_m,
                          s.spring_deviation_ratio, s.mean_strain, s.max_strain, s.time_step_s,
@@ -71,14 +71,14 @@ struct Outcome {
 };
 
 void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const FrameStats& stats) {
-  outcome.recoveries += stats.solve.divergence_recoveries;
-  outcome.diverged = outcome.diverged || stats.solve.diverged;
+  outcome.recoveries += stats.solver.divergence_recoveries;
+  outcome.diverged = outcome.diverged || stats.solver.diverged;
   outcome.finite = outcome.finite && stats.finite && simulation.state().position.allFinite() && statsFinite(stats);
   for (const Eigen::Matrix3Xd& fibre : fibrePolylines(simulation.system(), simulation.state().position))
     outcome.finite = outcome.finite && fibre.allFinite();
-  outcome.iterations += stats.solve.iterations;
-  outcome.wall_ms += stats.solve.total_ms;
-  outcome.time_step_s = stats.solve.time_step_s;
+  outcome.iterations += stats.solver.iterations;
+  outcome.wall_ms += stats.solver.total_ms;
+  outcome.time_step_s = stats.solver.time_step_s;
   outcome.max_penetration_bone_m = std::max(outcome.max_penetration_bone_m, stats.collision.max_penetration_muscle_bone_m);
   outcome.max_penetration_muscle_m =
       std::max(outcome.max_penetration_muscle_m, stats.collision.max_penetration_muscle_muscle_m);

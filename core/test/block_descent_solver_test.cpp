@@ -226,7 +226,7 @@ TEST(BlockDescent, BonesAsDistanceFieldsKeepEveryParticleOutAfterALargePoseJumpO
     EXPECT_EQ(rest.collision.muscle_bone_contacts, 0) << "the rest pose has no bone contact";
     const FrameStats jump = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);
     EXPECT_TRUE(jump.finite);
-    EXPECT_FALSE(jump.solve.diverged);
+    EXPECT_FALSE(jump.solver.diverged);
     // Every free particle (not only boundary ones) within a tenth of a millimetre of its clearance.
     EXPECT_LT(jump.collision.max_penetration_muscle_bone_m, 1e-4);
     positions[threads - 1] = simulation.state().position;
@@ -249,7 +249,7 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
     simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
     const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
     positions[threads - 1] = simulation.state().position;
-    contacts[threads - 1] = stats.solve.contacts;
+    contacts[threads - 1] = stats.solver.contacts;
   }
   EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
   EXPECT_EQ(contacts[0], contacts[1]);
@@ -267,7 +267,7 @@ TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {
   simulation.solve(syntheticThighPose(0, 0), StartMode::cold);
   const FrameStats stats = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);  // ~90 and ~115 degrees
   EXPECT_TRUE(stats.finite);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_FALSE(stats.solver.diverged);
   EXPECT_TRUE(simulation.state().position.allFinite());
   double median_radius = 0;
   {

@@ -52,7 +52,7 @@ TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStar
 
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);
     const FrameStats through_simulation = simulation.solve(pose, StartMode::cold);
-    EXPECT_EQ(through_simulation.solve.iterations, direct.iterations) << toString(kind);
+    EXPECT_EQ(through_simulation.solver.iterations, direct.iterations) << toString(kind);
     EXPECT_EQ(simulation.state().position, state.position) << toString(kind);
   }
 }
@@ -62,6 +62,6 @@ TEST(SolverFactory, NewStoppingReachesWhicheverSolverRuns) {
     SyntheticScene scene = makeSyntheticThigh(1, 4);
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), smallSettings(kind));
     simulation.setStopping(StoppingRule::iterations, 3, 1e-6, 16.0, SolveLimits{});
-    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solve.iterations, 3) << toString(kind);
+    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solver.iterations, 3) << toString(kind);
   }
 }

@@ -39,7 +39,7 @@ SimulationSettings smallSettings() {
 }
 
 bool statsFinite(const FrameStats& stats) {
-  const SolveStats& s = stats.solve;
+  const SolveStats& s = stats.solver;
   const CollisionStats& c = stats.collision;
   const double values[] = {s.mss_ms, s.collision_ms, s.total_ms, s.last_dt_s, s.min_dt_s, s.max_dt_s,
                            s.mean_displacement_m, s.spring_deviation_ratio, s.mean_strain, s.max_strain,
@@ -81,7 +81,7 @@ Eigen::Matrix3Xd convergedShape(const std::vector<Muscle>& muscles, const std::v
   settings.solver.max_iterations = 20000;
   MuscleSimulation reference(muscles, bones, settings);
   const FrameStats stats = reference.solve(pose, StartMode::cold);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   return reference.state().position;
 }
 
@@ -101,8 +101,8 @@ double largestStableStep(const MassSpringSystem& system) { return VerletSolver(s
 void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const FrameStats& stats,
                                     const Eigen::Matrix3Xd& converged, const Eigen::Matrix3Xd& pretransform) {
   expectAllFinite(simulation, stats);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
   const double error_m = rmsDistance(simulation.state().position, converged);
   const double start_error_m = rmsDistance(pretransform, converged);
   EXPECT_LE(error_m, start_error_m) << "RMS to the converged shape " << error_m * 1e3 << " mm, the pre-transform "
@@ -114,7 +114,7 @@ void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const Fr
               "step %.3f of the divergence size bound\n",
               error_m * 1e3, start_error_m * 1e3, stats.collision.max_penetration_muscle_bone_m * 1e3,
               medianSphereRadius(simulation.system()) * 1e3,
-              stats.solve.peak_mean_displacement_m / (DivergenceMonitor::kStepFraction * mean_rest_m));
+              stats.solver.peak_mean_displacement_m / (DivergenceMonitor::kStepFraction * mean_rest_m));
 }
 
 }  // namespace
@@ -182,14 +182,14 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
 
   expectAllFinite(simulation, stats);
-  EXPECT_GT(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_GT(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
   EXPECT_LE(rmsDistance(simulation.state().position, converged),
             rmsDistance(pretransformOf(simulation, pose), converged));
   std::printf("%d recoveries, step now %.3f x the stability bound, RMS to converged %.2f mm (pre-transform %.2f mm), "
               "bone penetration %.2f mm\n",
-              stats.solve.divergence_recoveries, stats.solve.time_step_s / stable_s,
+              stats.solver.divergence_recoveries, stats.solver.time_step_s / stable_s,
               rmsDistance(simulation.state().position, converged) * 1e3,
               rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
               stats.collision.max_penetration_muscle_bone_m * 1e3);
@@ -197,10 +197,10 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   // Recovery restarts from exactly the entry state: the result is the one a solve with the final step from the
   // start gives.
   SimulationSettings halved = settings;
-  halved.solver.dt_s = stats.solve.time_step_s;
+  halved.solver.dt_s = stats.solver.time_step_s;
   MuscleSimulation direct(scene.muscles, scene.bones, halved);
   const FrameStats direct_stats = direct.solve(pose, StartMode::cold);
-  EXPECT_EQ(direct_stats.solve.divergence_recoveries, 0);
+  EXPECT_EQ(direct_stats.solver.divergence_recoveries, 0);
   EXPECT_EQ(rmsDistance(simulation.state().position, direct.state().position), 0.0);
 
   // The recovered step is stable, not just stable for 100 iterations: a long solve with it settles without any
@@ -209,13 +209,13 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   halved.solver.stopping_rule = StoppingRule::displacement;
   MuscleSimulation long_solve(scene.muscles, scene.bones, halved);
   const FrameStats long_stats = long_solve.solve(pose, StartMode::cold);
-  EXPECT_EQ(long_stats.solve.divergence_recoveries, 0);
-  EXPECT_TRUE(long_stats.solve.stopping_rule_met);
+  EXPECT_EQ(long_stats.solver.divergence_recoveries, 0);
+  EXPECT_TRUE(long_stats.solver.stopping_rule_met);
 
   // The halved step is kept: the next frame does not diverge again.
   const FrameStats next = simulation.solve(syntheticThighPose(50 * kDegree, 35 * kDegree), StartMode::warm);
-  EXPECT_EQ(next.solve.divergence_recoveries, 0);
-  EXPECT_EQ(next.solve.time_step_s, stats.solve.time_step_s);
+  EXPECT_EQ(next.solver.divergence_recoveries, 0);
+  EXPECT_EQ(next.solver.time_step_s, stats.solver.time_step_s);
   expectAllFinite(simulation, next);
 }
 
@@ -231,9 +231,9 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
 
   expectAllFinite(simulation, stats);
-  EXPECT_GT(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
-  EXPECT_LE(stats.solve.time_step_s, largestStableStep(simulation.system()));
+  EXPECT_GT(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
+  EXPECT_LE(stats.solver.time_step_s, largestStableStep(simulation.system()));
   // A uniform stiffness scale changes the dynamics, not the equilibrium (no external force): the converged shape of
   // the original stiffness is the reference.
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
@@ -242,7 +242,7 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, medianSphereRadius(simulation.system()));
   std::printf("%d recoveries, step now %.4f x the previous one, RMS to converged %.2f mm (pre-transform %.2f mm), "
               "bone penetration %.2f mm\n",
-              stats.solve.divergence_recoveries, stats.solve.time_step_s / previous_step_s,
+              stats.solver.divergence_recoveries, stats.solver.time_step_s / previous_step_s,
               rmsDistance(simulation.state().position, converged) * 1e3,
               rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
               stats.collision.max_penetration_muscle_bone_m * 1e3);
@@ -257,8 +257,8 @@ TEST(Stability, EveryAttemptDivergingLeavesTheEntryStateAndSaysSo) {
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
   expectAllFinite(simulation, stats);
-  EXPECT_TRUE(stats.solve.diverged);
-  EXPECT_EQ(stats.solve.divergence_recoveries, VerletSolver::kMaxRecoveries);
+  EXPECT_TRUE(stats.solver.diverged);
+  EXPECT_EQ(stats.solver.divergence_recoveries, VerletSolver::kMaxRecoveries);
   EXPECT_EQ(rmsDistance(simulation.state().position, pretransformOf(simulation, pose)), 0.0);
 }
 
@@ -302,7 +302,7 @@ TEST(Stability, TwoMusclesStartingInterpenetratedByFiveMillimetres) {
   EXPECT_GT(simulation.restOverlaps().muscle_muscle_pairs, 0);
   const FrameStats rest = simulation.solve(Pose{}, StartMode::cold);
   expectAllFinite(simulation, rest);
-  EXPECT_EQ(rest.solve.divergence_recoveries, 0);
+  EXPECT_EQ(rest.solver.divergence_recoveries, 0);
   EXPECT_LT((simulation.state().position - simulation.system().rest_position).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_EQ(rest.collision.max_penetration_muscle_muscle_m, 0.0);
 
@@ -345,7 +345,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
     const FrameStats stats = simulation.solve(pose, StartMode::warm);
     SCOPED_TRACE("rod at x = " + std::to_string(x));
     expectAllFinite(simulation, stats);
-    EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+    EXPECT_EQ(stats.solver.divergence_recoveries, 0);
     worst_penetration_m = std::max(worst_penetration_m, stats.collision.max_penetration_muscle_bone_m);
   }
   EXPECT_LE(worst_penetration_m, radius_m);
@@ -357,7 +357,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
   for (int frame = 0; frame < 5; ++frame) {
     const FrameStats after = simulation.solve(gone, StartMode::warm);
     expectAllFinite(simulation, after);
-    EXPECT_EQ(after.solve.divergence_recoveries, 0);
+    EXPECT_EQ(after.solver.divergence_recoveries, 0);
     const double rms_m = rmsDistance(simulation.state().position, simulation.system().rest_position);
     EXPECT_LT(rms_m, previous_rms_m);
     previous_rms_m = rms_m;
@@ -426,9 +426,9 @@ TEST(Stability, AMuscleWhoseParticlesAreAllFixed) {
       Eigen::Isometry3d(Eigen::Translation3d(0.01, 0.02, 0.03) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitX()));
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
   expectAllFinite(simulation, stats);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
-  EXPECT_EQ(stats.solve.mean_displacement_m, 0.0);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
+  EXPECT_EQ(stats.solver.mean_displacement_m, 0.0);
   // Every particle rides its bone rigidly.
   EXPECT_LT((simulation.state().position - pretransformOf(simulation, pose)).cwiseAbs().maxCoeff(), 1e-15);
 }
@@ -456,7 +456,7 @@ TEST(Stability, AGaitLikeSweepNeverTriggersTheDivergenceCheck) {
                          StartMode::warm);
     SCOPED_TRACE("frame " + std::to_string(frame));
     expectAllFinite(simulation, stats);
-    EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+    EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   }
 }
 
@@ -468,7 +468,7 @@ TEST(Stability, LocalGlobalSolverStaysFiniteOnTheHardPoses) {
   for (const Pose& pose : {syntheticThighPose(90 * kDegree, 0), syntheticThighPose(110 * kDegree, 130 * kDegree)}) {
     const FrameStats stats = simulation.solve(pose, StartMode::warm);
     expectAllFinite(simulation, stats);
-    EXPECT_FALSE(stats.solve.diverged);
+    EXPECT_FALSE(stats.solver.diverged);
   }
 }
 

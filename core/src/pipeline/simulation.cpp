@@ -103,16 +103,16 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   if (collision_ && solver_->solvesContacts()) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
-    stats.solve = solver_->solve(state_);
+    stats.solver = solver_->solve(state_);
     stats.collision = collision_->measure(state_);
   } else if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
     const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };
-    stats.solve = solver_->solve(state_, resolve);
+    stats.solver = solver_->solve(state_, resolve);
     stats.collision = collision_->measure(state_);
   } else {
-    stats.solve = solver_->solve(state_);
+    stats.solver = solver_->solve(state_);
   }
   if (cold_under_budget)
     solver_->setStopping(stop.stopping_rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
@@ -123,13 +123,13 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   stats.finite = state_.position.allFinite();
   if (!stats.finite) {
     rigidPretransform(system_, transforms, state_);
-    stats.solve.diverged = true;
+    stats.solver.diverged = true;
     stats.fell_back_to_pretransform = true;
     if (collision_) stats.collision = collision_->measure(state_);
     stats.finite = state_.position.allFinite();
   }
   previous_transforms_ = transforms;
-  has_previous_ = stats.finite && !stats.solve.diverged;  // never warm-start from a broken state
+  has_previous_ = stats.finite && !stats.solver.diverged;  // never warm-start from a broken state
   return stats;
 }
 

@@ -33,7 +33,7 @@ enum class StartMode {
 };
 
 struct FrameStats {
-  SolveStats solve;          // iterations, per-phase times, spring deviation, strain
+  SolveStats solver;         // the solver's: iterations, per-phase times, spring deviation, strain, divergence
   CollisionStats collision;  // contacts and remaining penetration after the last iteration, when has_collision
   bool has_collision = false;  // collisions are on, so `collision` was measured (off: its figures mean nothing)
   bool warm_started = false;
