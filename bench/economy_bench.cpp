@@ -104,7 +104,7 @@ double maxOf(const std::vector<double>& values) {
 double memoryBytes(const MuscleSimulation& simulation) {
   const MassSpringSystem& system = simulation.system();
   const double state = 2.0 * 3.0 * sizeof(double) * static_cast<double>(system.particleCount());
-  return static_cast<double>(system.modelBytes() + VerletSolver(system, simulation.settings().solver).solverBytes()) +
+  return static_cast<double>(system.modelBytes() + VerletSolver(system, simulation.settings().verlet).solverBytes()) +
          state;
 }
 
@@ -177,7 +177,7 @@ int main(int argc, char** argv) {
   std::string bone_list;
   for (const Bone& bone : all.scene.bones) bone_list += " " + bone.name;
   std::printf("bones:%s; %zu gait frames per variant, %d iterations per frame, %d particles per fibre\n",
-              bone_list.c_str(), frame_count, defaults.simulation.solver.max_iterations,
+              bone_list.c_str(), frame_count, defaults.simulation.stopping.max_iterations,
               defaults.simulation.model.particles_per_fibre);
 
   // Work estimate for the progress line: frames played x muscles simulated, summed over the runs below.

@@ -154,15 +154,15 @@ int main(int argc, char** argv) {
   double auto_step_s = 0;
   {
     MuscleSimulation probe(thigh.scene.muscles, thigh.scene.bones, settings);
-    auto_step_s = VerletSolver(probe.system(), settings.solver).timeStep();
+    auto_step_s = VerletSolver(probe.system(), settings.verlet).timeStep();
   }
   SimulationSettings long_step = settings;
-  long_step.solver.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
+  long_step.verlet.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
   poseCase(report, thigh, "dt_x10", "dt 10 x the largest stable step, hip 0.5 rad knee 1.0 rad, cold", long_step,
            walking, false);
   SimulationSettings stiff = settings;
   stiff.model.spring_material_n *= 1000;
-  stiff.solver.dt_s = auto_step_s;
+  stiff.verlet.dt_s = auto_step_s;
   poseCase(report, thigh, "stiffness_x1000", "springs 1000 x stiffer, the previous automatic step, cold", stiff, walking,
            false);
 

@@ -30,9 +30,9 @@ int main(int argc, char** argv) {
 
   const SyntheticScene scene = makeSyntheticThigh();
   SimulationSettings settings;
-  settings.solver.stopping_rule = StoppingRule::displacement;
-  settings.solver.displacement_tolerance_m = 1e-6;
-  settings.solver.max_iterations = 400;
+  settings.verlet.stopping_rule = StoppingRule::displacement;
+  settings.verlet.displacement_tolerance_m = 1e-6;
+  settings.verlet.max_iterations = 400;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const MassSpringSystem& system = simulation.system();
   std::printf("synthetic thigh: %d muscles, %ld particles, %zu springs, bone spheres", system.muscleCount(),

@@ -97,7 +97,7 @@ TEST(BlockDescent, StretchedBlockMatchesAnIndependentSolverAndIsAtRestWhenUnload
   BlockDescentSolver block(pulled, converging(20000, 1e-11));
   stats = block.solve(descent);
   EXPECT_TRUE(stats.converged);
-  SolverSettings verlet_settings;
+  VerletSettings verlet_settings;
   verlet_settings.max_iterations = 200000;
   verlet_settings.stopping_rule = StoppingRule::displacement;
   verlet_settings.displacement_tolerance_m = 1e-13;
@@ -132,7 +132,7 @@ TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
 
 TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
   const MassSpringSystem system = fixedChain(3);
-  SolverSettings verlet;
+  VerletSettings verlet;
   verlet.stopping_rule = StoppingRule::force_residual;
   EXPECT_THROW(VerletSolver(system, verlet), std::invalid_argument);
   LocalGlobalSettings local_global;

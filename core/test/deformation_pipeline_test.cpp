@@ -14,7 +14,7 @@ PipelineSettings smallSettings() {
   PipelineSettings settings;
   settings.simulation.model.particles_per_fibre = 10;
   settings.simulation.model.nearest_neighbours = 8;
-  settings.simulation.solver.max_iterations = 30;
+  settings.simulation.verlet.max_iterations = 30;
   return settings;
 }
 

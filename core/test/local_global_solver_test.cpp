@@ -153,7 +153,7 @@ TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
   const double start_energy = springEnergy(system, start.position);
 
   for (const double factor : {10.0, 100.0}) {
-    SolverSettings verlet_settings;
+    VerletSettings verlet_settings;
     verlet_settings.mass_rule = MassRule::uniform;
     verlet_settings.dt_s = factor * bound;
     verlet_settings.max_iterations = 200;

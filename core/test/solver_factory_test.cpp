@@ -17,7 +17,7 @@ SimulationSettings smallSettings(SolverKind kind) {
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
   settings.solver_kind = kind;
-  settings.solver.max_iterations = 25;
+  settings.verlet.max_iterations = 25;
   settings.local_global.max_iterations = 6;
   settings.collisions = false;  // the solver alone
   return settings;
@@ -47,7 +47,7 @@ TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStar
     ParticleState state = restState(system);
     rigidPretransform(system, boneTransformsOf(scene.bones, pose), state);
     const std::unique_ptr<SoftBodySolver> solver =
-        makeSolver(SolverChoice{kind, settings.solver, settings.local_global}, system);
+        makeSolver(SolverChoice{kind, settings.verlet, settings.local_global}, system);
     const SolveStats direct = solver->solve(state);
 
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);

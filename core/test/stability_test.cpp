@@ -34,7 +34,7 @@ SimulationSettings smallSettings() {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
-  settings.solver.max_iterations = 100;  // the node's default
+  settings.verlet.max_iterations = 100;  // the node's default
   return settings;
 }
 
@@ -75,10 +75,10 @@ Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& 
 // iteration is below 1e-9 m (or 20000 iterations).
 Eigen::Matrix3Xd convergedShape(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                 SimulationSettings settings, const Pose& pose) {
-  settings.solver.dt_s = 0;
-  settings.solver.stopping_rule = StoppingRule::displacement;
-  settings.solver.displacement_tolerance_m = 1e-9;
-  settings.solver.max_iterations = 20000;
+  settings.verlet.dt_s = 0;
+  settings.verlet.stopping_rule = StoppingRule::displacement;
+  settings.verlet.displacement_tolerance_m = 1e-9;
+  settings.verlet.max_iterations = 20000;
   MuscleSimulation reference(muscles, bones, settings);
   const FrameStats stats = reference.solve(pose, StartMode::cold);
   EXPECT_EQ(stats.solver.divergence_recoveries, 0);
@@ -95,7 +95,7 @@ double medianSphereRadius(const MassSpringSystem& system) {
 }
 
 // The largest step the automatic rule considers stable for this model (it takes 0.9 of it).
-double largestStableStep(const MassSpringSystem& system) { return VerletSolver(system, SolverSettings{}).timeStep() / 0.9; }
+double largestStableStep(const MassSpringSystem& system) { return VerletSolver(system, VerletSettings{}).timeStep() / 0.9; }
 
 // The checks every hard case shares, for a solve where nothing should diverge.
 void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const FrameStats& stats,
@@ -176,7 +176,7 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
   const double stable_s = largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
-  settings.solver.dt_s = 10 * stable_s;
+  settings.verlet.dt_s = 10 * stable_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
@@ -197,7 +197,7 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   // Recovery restarts from exactly the entry state: the result is the one a solve with the final step from the
   // start gives.
   SimulationSettings halved = settings;
-  halved.solver.dt_s = stats.solver.time_step_s;
+  halved.verlet.dt_s = stats.solver.time_step_s;
   MuscleSimulation direct(scene.muscles, scene.bones, halved);
   const FrameStats direct_stats = direct.solve(pose, StartMode::cold);
   EXPECT_EQ(direct_stats.solver.divergence_recoveries, 0);
@@ -205,8 +205,8 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
 
   // The recovered step is stable, not just stable for 100 iterations: a long solve with it settles without any
   // recovery. (stabilityTimeStep is a Gershgorin bound, conservative: the step found may lie a little above it.)
-  halved.solver.max_iterations = 5000;
-  halved.solver.stopping_rule = StoppingRule::displacement;
+  halved.verlet.max_iterations = 5000;
+  halved.verlet.stopping_rule = StoppingRule::displacement;
   MuscleSimulation long_solve(scene.muscles, scene.bones, halved);
   const FrameStats long_stats = long_solve.solve(pose, StartMode::cold);
   EXPECT_EQ(long_stats.solver.divergence_recoveries, 0);
@@ -223,9 +223,9 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
   const double previous_step_s = VerletSolver(MuscleSimulation(scene.muscles, scene.bones, settings).system(),
-                                              SolverSettings{}).timeStep();
+                                              VerletSettings{}).timeStep();
   settings.model.spring_material_n *= 1000;
-  settings.solver.dt_s = previous_step_s;
+  settings.verlet.dt_s = previous_step_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
@@ -252,7 +252,7 @@ TEST(Stability, EveryAttemptDivergingLeavesTheEntryStateAndSaysSo) {
   // A step 10^4 x too long needs 14 halvings, more than the solver allows.
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
-  settings.solver.dt_s = 1e4 * largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
+  settings.verlet.dt_s = 1e4 * largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);

@@ -81,7 +81,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   SolveLimits limits;
   limits.wall_time_limit_ms = 1000.0 * settings_.max_solve_time_s;
   limits.cancel = &shutting_down_;
-  settings_.pipeline.simulation.solver.limits = limits;
+  settings_.pipeline.simulation.stopping.limits = limits;
   shareStoppingRule(settings_.pipeline.simulation);
   std::string urdf;
   if (!node_.getParam("robot_description", urdf) || urdf.empty()) {
@@ -520,9 +520,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     settings.simulation.solver_kind = settings_.service.solver_kind;
     settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
     // Only block descent measures a force residual; another service solver runs its iteration count instead.
-    if (settings.simulation.solver.stopping_rule == StoppingRule::force_residual &&
+    if (settings.simulation.stopping.rule == StoppingRule::force_residual &&
         settings_.service.solver_kind != SolverKind::block_descent) {
-      settings.simulation.solver.stopping_rule = StoppingRule::iterations;
+      settings.simulation.stopping.rule = StoppingRule::iterations;
       shareStoppingRule(settings.simulation);
     }
     std::vector<MuscleDescription> descriptions;
@@ -541,8 +541,8 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // Every limit the request gives is honoured, whatever the node's stopping rule: a displacement tolerance makes the
   // solve stop when it is met (the only convergence criterion), a time budget bounds its wall time, and the node's
   // max_solve_time_s bounds every call.
-  const SolverSettings& node_solver = settings_.pipeline.simulation.solver;
-  StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
+  const StoppingSettings& node_stopping = settings_.pipeline.simulation.stopping;
+  StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_stopping.rule;
   // A frame's time budget is the stream's (a request bounds its own time with time_budget_ms), and only block descent
   // measures a force residual: the service runs its iteration count instead.
   if (rule == StoppingRule::time_budget ||
@@ -550,9 +550,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     rule = StoppingRule::iterations;
   const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
   const double tolerance_m =
-      request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_solver.displacement_tolerance_m;
+      request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_stopping.displacement_tolerance_m;
   const double ceiling_ms = 1000.0 * settings_.max_solve_time_s;
-  const double budget_ms = request.time_budget_ms > 0 ? request.time_budget_ms : node_solver.time_budget_ms;
+  const double budget_ms = request.time_budget_ms > 0 ? request.time_budget_ms : node_stopping.time_budget_ms;
   SolveLimits limits;
   limits.wall_time_limit_ms = request.time_budget_ms > 0 ? std::min(request.time_budget_ms, ceiling_ms) : ceiling_ms;
   limits.cancel = &shutting_down_;

@@ -156,7 +156,7 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   p.readDouble("service_warm_max_rotation_rad", service.warm_max_rotation_rad, 0.0, 7.0);
   p.readDouble("max_solve_time_s", settings.max_solve_time_s, 1e-3, 3600.0);
   shareStoppingRule(simulation);
-  if (simulation.solver.stopping_rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
+  if (simulation.stopping.rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
     p.fail("stopping_rule", "force_residual is measured by the block_descent solver only (solver is " +
                                 toString(simulation.solver_kind) + ")");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which

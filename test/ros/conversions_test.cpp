@@ -237,7 +237,7 @@ TEST(Conversions, APipelinesFrameCarriesEverythingItsMessagesNeed) {
   md::PipelineSettings settings;
   settings.simulation.model.particles_per_fibre = 6;
   settings.simulation.model.nearest_neighbours = 6;
-  settings.simulation.solver.max_iterations = 5;
+  settings.simulation.verlet.max_iterations = 5;
   std::vector<md::MuscleDescription> descriptions(2);
   for (std::size_t m = 0; m < 2; ++m) descriptions[m].name = scene.muscles[m].name;
   md::DeformationPipeline pipeline(descriptions, scene.muscles, scene.bones, settings);

@@ -121,7 +121,7 @@ TEST(Parameters, ValuesOfEveryKindAreReadIntoTheSettings) {
                            {"surface_alpha", XmlRpc::XmlRpcValue(0.25)}}),
       kPackageRoot);
   EXPECT_EQ(settings.pipeline.simulation.model.particles_per_fibre, 12);
-  EXPECT_EQ(settings.pipeline.simulation.solver.max_iterations, 40);
+  EXPECT_EQ(settings.pipeline.simulation.stopping.max_iterations, 40);
   EXPECT_EQ(settings.pipeline.simulation.model.attachment_distance_m, 0.0);
   EXPECT_FALSE(settings.pipeline.simulation.model.fix_fibre_ends);
   EXPECT_EQ(settings.pipeline.simulation.solver_kind, md::SolverKind::local_global);

@@ -86,7 +86,7 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
 
 // shareStoppingRule (the one set of stopping parameters driving whichever solver runs) is the core's:
-// pipeline/settings_table.hpp.
+// pipeline/simulation.hpp.
 
 
 }  // namespace muscle_deformation::node

@@ -48,10 +48,8 @@ CoreSettings nodeDefaultSettings();
 // A YAML scalar typed as rosparam types the same file: true/false, an integer, a floating-point number, else the text.
 SettingValue settingValueOfYamlScalar(const std::string& text);
 
-// The table holds one set of stopping parameters (stopping_rule, max_iterations, tolerances, time budget, limits) in
-// the Verlet settings; this copies them into the local/global and block descent settings so they drive whichever
-// solver runs.
-void shareStoppingRule(SimulationSettings& simulation);
+// The table holds one set of stopping parameters (stopping_rule, max_iterations, tolerances, time budget) in
+// SimulationSettings::stopping; shareStoppingRule (pipeline/simulation.hpp) makes them drive whichever solver runs.
 
 // Reads every setting of the table that the YAML map at `path` holds (other keys are left to their owners) into
 // `settings`. Throws std::invalid_argument naming the file, the key and the problem.
