@@ -10,55 +10,29 @@
 namespace muscle_deformation {
 namespace {
 
-using Kind = SettingSpec::Kind;
+using Kind = SettingKind;
+using setting_entries::asNumber;
 
-double asNumber(const SettingValue& value) {
-  if (const int* i = std::get_if<int>(&value)) return *i;
-  return std::get<double>(value);
-}
-
+// The builders for the core's table.
 template <typename Access>
 SettingSpec boolean(std::string name, std::string meaning, Access access) {
-  SettingSpec spec{std::move(name), Kind::boolean, "", 0, 0, {}, std::move(meaning), {}, {}};
-  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
-  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = std::get<bool>(v); };
-  return spec;
+  return setting_entries::boolean<CoreSettings>(std::move(name), std::move(meaning), access);
 }
-
 template <typename Access>
 SettingSpec integer(std::string name, std::string unit, int min, int max, std::string meaning, Access access) {
-  SettingSpec spec{std::move(name), Kind::integer, std::move(unit), double(min), double(max), {}, std::move(meaning),
-                   {}, {}};
-  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
-  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = static_cast<int>(asNumber(v)); };
-  return spec;
+  return setting_entries::integer<CoreSettings>(std::move(name), std::move(unit), min, max, std::move(meaning),
+                                                access);
 }
-
 template <typename Access>
 SettingSpec number(std::string name, std::string unit, double min, double max, std::string meaning, Access access) {
-  SettingSpec spec{std::move(name), Kind::number, std::move(unit), min, max, {}, std::move(meaning), {}, {}};
-  spec.get = [access](const CoreSettings& s) { return SettingValue(access(const_cast<CoreSettings&>(s))); };
-  spec.set = [access](CoreSettings& s, const SettingValue& v) { access(s) = asNumber(v); };
-  return spec;
+  return setting_entries::number<CoreSettings>(std::move(name), std::move(unit), min, max, std::move(meaning),
+                                               access);
 }
-
-// `names[i]` is the name of `values[i]`.
 template <typename Enum, typename Access>
 SettingSpec choice(std::string name, std::vector<std::string> names, std::vector<Enum> values, std::string meaning,
                    Access access) {
-  SettingSpec spec{std::move(name), Kind::choice, "", 0, 0, names, std::move(meaning), {}, {}};
-  spec.get = [access, names, values](const CoreSettings& s) {
-    const Enum current = access(const_cast<CoreSettings&>(s));
-    for (std::size_t i = 0; i < values.size(); ++i)
-      if (values[i] == current) return SettingValue(names[i]);
-    return SettingValue(std::string("?"));
-  };
-  spec.set = [access, names, values](CoreSettings& s, const SettingValue& v) {
-    const std::string& text = std::get<std::string>(v);
-    for (std::size_t i = 0; i < names.size(); ++i)
-      if (names[i] == text) access(s) = values[i];
-  };
-  return spec;
+  return setting_entries::choice<CoreSettings, Enum>(std::move(name), std::move(names), std::move(values),
+                                                     std::move(meaning), access);
 }
 
 std::vector<SettingSpec> buildTable() {
@@ -174,7 +148,7 @@ std::vector<SettingSpec> buildTable() {
   };
 }
 
-std::string formatted(double value, SettingSpec::Kind kind) {
+std::string formatted(double value, SettingKind kind) {
   return kind == Kind::integer ? std::to_string(static_cast<long long>(value)) : std::to_string(value);
 }
 
@@ -191,15 +165,16 @@ const SettingSpec* findSetting(const std::string& name) {
   return nullptr;
 }
 
-std::string checkSetting(const SettingSpec& spec, const SettingValue& value) {
-  switch (spec.kind) {
+std::string checkSettingValue(SettingKind kind, double min, double max, const std::vector<std::string>& choices,
+                              const SettingValue& value) {
+  switch (kind) {
     case Kind::boolean:
       return std::holds_alternative<bool>(value) ? "" : "has the wrong type";
     case Kind::choice: {
       if (!std::holds_alternative<std::string>(value)) return "must be a string";
       const std::string& text = std::get<std::string>(value);
       std::string accepted;
-      for (const std::string& name : spec.choices) {
+      for (const std::string& name : choices) {
         if (name == text) return "";
         accepted += (accepted.empty() ? "" : ", ") + name;
       }
@@ -216,19 +191,21 @@ std::string checkSetting(const SettingSpec& spec, const SettingValue& value) {
       } else {
         return "must be an integer";
       }
-      if (number < spec.min || number > spec.max)
-        return "is " + formatted(number, spec.kind) + ", must be in [" + formatted(spec.min, spec.kind) + ", " +
-               formatted(spec.max, spec.kind) + "]";
+      if (number < min || number > max)
+        return "is " + formatted(number, kind) + ", must be in [" + formatted(min, kind) + ", " +
+               formatted(max, kind) + "]";
       return "";
     }
     case Kind::number: {
       if (!std::holds_alternative<int>(value) && !std::holds_alternative<double>(value)) return "must be a number";
       const double number = asNumber(value);
-      if (!(number >= spec.min && number <= spec.max))
-        return "is " + std::to_string(number) + ", must be in [" + std::to_string(spec.min) + ", " +
-               std::to_string(spec.max) + "]";
+      if (!(number >= min && number <= max))
+        return "is " + std::to_string(number) + ", must be in [" + std::to_string(min) + ", " +
+               std::to_string(max) + "]";
       return "";
     }
+    case Kind::text:
+      return std::holds_alternative<std::string>(value) ? "" : "has the wrong type";
   }
   return "has an unknown kind";
 }
