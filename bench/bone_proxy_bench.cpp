@@ -67,7 +67,7 @@ struct Yardsticks {
       metrics_ms;
 };
 
-void measureFrame(const DeformationPipeline& pipeline, const PipelineFrame& frame, const Eigen::VectorXd& rest_depth,
+void measureFrame(const DeformationPipeline& pipeline, const FrameResult& frame, const Eigen::VectorXd& rest_depth,
                   Yardsticks& out) {
   const MuscleSimulation& simulation = pipeline.simulation();
   const Eigen::VectorXd depth = depthInsideBones(*pipeline.metrics(), simulation.system(), simulation.state().position,
@@ -76,13 +76,13 @@ void measureFrame(const DeformationPipeline& pipeline, const PipelineFrame& fram
   out.deeper_than_rest_mm =
       std::max(out.deeper_than_rest_mm, kMillimetresPerMetre * (depth - rest_depth).cwiseMax(0.0).maxCoeff());
   out.proxy_penetration_mm =
-      std::max(out.proxy_penetration_mm, kMillimetresPerMetre * frame.solve.collision.max_penetration_muscle_bone_m);
+      std::max(out.proxy_penetration_mm, kMillimetresPerMetre * frame.stats.collision.max_penetration_muscle_bone_m);
   out.volume_mean_pct.push_back(frame.metrics.volume_error_mean_pct);
   out.volume_max_pct.push_back(frame.metrics.volume_error_max_pct);
   out.inside_vertices.push_back(frame.metrics.vertices_inside_bone);
   out.inside_depth_mm.push_back(kMillimetresPerMetre * frame.metrics.max_inside_bone_depth_m);
-  out.solve_ms.push_back(frame.solve.solve.total_ms);
-  out.bone_cd_ms.push_back(frame.solve.collision.bone_cd_ms);
+  out.solve_ms.push_back(frame.stats.solver.total_ms);
+  out.bone_cd_ms.push_back(frame.stats.collision.bone_cd_ms);
   out.metrics_ms.push_back(frame.metrics_ms);
 }
 
@@ -155,7 +155,7 @@ int main(int argc, char** argv) {
 
     Yardsticks gait;
     for (std::size_t f = 0; f < frame_count; ++f) {
-      const PipelineFrame& frame = pipeline->solve(gaitPose(all, f), StartMode::warm, true, true);
+      const FrameResult& frame = pipeline->solve(gaitPose(all, f), StartMode::warm, true, true);
       measureFrame(*pipeline, frame, rest_depth, gait);
     }
     progress.finished(std::string(toString(proxy)) + " gait", static_cast<double>(frame_count));
@@ -163,7 +163,7 @@ int main(int argc, char** argv) {
 
     Yardsticks hard;
     pipeline->reset();
-    const PipelineFrame& frame = pipeline->solve(hard_pose, StartMode::cold, true, true);
+    const FrameResult& frame = pipeline->solve(hard_pose, StartMode::cold, true, true);
     measureFrame(*pipeline, frame, rest_depth, hard);
     progress.finished(std::string(toString(proxy)) + " hard pose", 1.0);
     common("hip_flexion_110_knee_130_cold", hard);

@@ -102,7 +102,7 @@ int main(int argc, char** argv) {
     model.nearest_neighbours = 18;
     MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model);
     assignCollisionRadii(system, scene.muscles);
-    SolverSettings solver_settings;
+    VerletSettings solver_settings;
     solver_settings.dt_rule = TimeStepRule::fixed;
     VerletSolver solver(system, solver_settings);
 

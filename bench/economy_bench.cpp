@@ -104,7 +104,7 @@ double maxOf(const std::vector<double>& values) {
 double memoryBytes(const MuscleSimulation& simulation) {
   const MassSpringSystem& system = simulation.system();
   const double state = 2.0 * 3.0 * sizeof(double) * static_cast<double>(system.particleCount());
-  return static_cast<double>(system.modelBytes() + VerletSolver(system, simulation.settings().solver).solverBytes()) +
+  return static_cast<double>(system.modelBytes() + VerletSolver(system, simulation.settings().verlet).solverBytes()) +
          state;
 }
 
@@ -120,11 +120,11 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
   records.add("frames", static_cast<double>(frames.size()));
   // Iterations a frame actually ran (under a time budget they vary), and which solver ran them.
   records.add("iterations_per_frame",
-              bench::median(statColumn(frames, [](const FrameStats& s) { return static_cast<double>(s.solve.iterations); })));
+              bench::median(statColumn(frames, [](const FrameStats& s) { return static_cast<double>(s.solver.iterations); })));
   records.add("solver", toString(simulation.settings().solver_kind));
-  records.add("mss_ms_per_frame", bench::median(statColumn(frames, [](const FrameStats& s) { return s.solve.mss_ms; })));
+  records.add("mss_ms_per_frame", bench::median(statColumn(frames, [](const FrameStats& s) { return s.solver.mss_ms; })));
   records.add("collision_ms_per_frame",
-              bench::median(statColumn(frames, [](const FrameStats& s) { return s.solve.collision_ms; })));
+              bench::median(statColumn(frames, [](const FrameStats& s) { return s.solver.collision_ms; })));
   records.add("bone_cd_ms_per_frame",
               bench::median(statColumn(frames, [](const FrameStats& s) { return s.collision.bone_cd_ms; })));
   records.add("muscle_cd_ms_per_frame",
@@ -177,7 +177,7 @@ int main(int argc, char** argv) {
   std::string bone_list;
   for (const Bone& bone : all.scene.bones) bone_list += " " + bone.name;
   std::printf("bones:%s; %zu gait frames per variant, %d iterations per frame, %d particles per fibre\n",
-              bone_list.c_str(), frame_count, defaults.simulation.solver.max_iterations,
+              bone_list.c_str(), frame_count, defaults.simulation.stopping.max_iterations,
               defaults.simulation.model.particles_per_fibre);
 
   // Work estimate for the progress line: frames played x muscles simulated, summed over the runs below.
@@ -294,7 +294,7 @@ int main(int argc, char** argv) {
                   names[v], simulations[v]->collisionWorld()->muscleSphereCount(),
                   bench::median(column(played_in_turn[v], &FrameRecord::wall_ms)),
                   bench::median(statColumn(played_in_turn[v],
-                                           [](const FrameStats& s) { return s.solve.collision_ms; })),
+                                           [](const FrameStats& s) { return s.solver.collision_ms; })),
                   kMillimetresPerMetre * penetration[v][0], kMillimetresPerMetre * penetration[v][1]);
     }
     progress.finished("collision_particles", static_cast<double>(frame_count) * 2 * thigh13_muscles);

@@ -80,7 +80,7 @@ int main(int argc, char** argv) {
       return lg_reference.solve(s, h);
     });
     const Eigen::Matrix3Xd& reference = lg_converged.final_position;
-    SolverSettings verlet_reference_settings;
+    VerletSettings verlet_reference_settings;
     verlet_reference_settings.stopping_rule = StoppingRule::displacement;
     verlet_reference_settings.displacement_tolerance_m = 1e-7;
     verlet_reference_settings.max_iterations = options.quick ? 5000 : 20000;
@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
     ParticleState check;
     check.position = reference;
     check.previous_position = reference;
-    SolverSettings check_settings;
+    VerletSettings check_settings;
     check_settings.max_iterations = options.quick ? 1000 : 5000;
     VerletSolver check_solver(system, check_settings);
     if (collision)
@@ -142,7 +142,7 @@ int main(int argc, char** argv) {
       double factorisation_ms = 0;
       auto makeSolver = [&](int iterations) {
         if (variant.solver == "verlet") {
-          SolverSettings settings;
+          VerletSettings settings;
           settings.max_iterations = iterations;
           verlet = std::make_unique<VerletSolver>(system, settings);
           solve = [&](ParticleState& s, const AfterUpdateHook& h) { return verlet->solve(s, h); };

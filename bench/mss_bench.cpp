@@ -61,7 +61,7 @@ int main(int argc, char** argv) {
 
     // Median wall and thread-CPU time per iteration over repeated runs from the same start.
     auto timePerIteration = [&](TimeStepRule rule) {
-      SolverSettings settings;
+      VerletSettings settings;
       settings.dt_rule = rule;
       VerletSolver solver(system, settings);
       std::vector<double> wall, cpu;
@@ -82,7 +82,7 @@ int main(int argc, char** argv) {
     // Everything one solve keeps in memory: model arrays, the solver's packed copy, and the state (x, x_prev).
     const std::size_t state_bytes = 2 * 3 * sizeof(double) * static_cast<std::size_t>(system.particleCount());
     const std::size_t bytes_per_particle =
-        (system.modelBytes() + VerletSolver(system, SolverSettings{}).solverBytes() + state_bytes) /
+        (system.modelBytes() + VerletSolver(system, VerletSettings{}).solverBytes() + state_bytes) /
         static_cast<std::size_t>(system.particleCount());
 
     std::printf("%-8d %9ld %9zu %11zu %14.3f %14.3f %14.3f %10.1f %7.0fx\n", paper[k].particles_per_fibre,

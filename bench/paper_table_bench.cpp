@@ -52,7 +52,7 @@ struct PoseAverage {
   int boundary_particles = 0;
 };
 
-PoseAverage measureOverPoses(const MeasuredScene& scene, const SolverSettings& solver_settings,
+PoseAverage measureOverPoses(const MeasuredScene& scene, const VerletSettings& solver_settings,
                              const CollisionSettings& collision_settings, const Timing& timing) {
   VerletSolver solver(*scene.system, solver_settings);
   CollisionWorld world(*scene.system, scene.bone_spheres, collision_settings, scene.bone_names);
@@ -140,7 +140,7 @@ int main(int argc, char** argv) {
         for (const Bone& bone : synthetic.bones) scene.bone_names.push_back(bone.name);
         scene.pose_transforms = synthetic_poses;
       }
-      const PoseAverage result = measureOverPoses(scene, settings.solver, settings.collision, timing);
+      const PoseAverage result = measureOverPoses(scene, settings.verlet, settings.collision, timing);
       const bench::IterationSplit& m = result.mean;
       const double ratio = column.total_ms / m.total_ms;
 

@@ -51,10 +51,10 @@ struct Config {
 SimulationSettings settingsFor(const SimulationSettings& defaults, const Config& config) {
   SimulationSettings settings = defaults;
   settings.solver_kind = config.kind;
-  settings.solver.stopping_rule = config.rule;
-  settings.solver.max_iterations = config.max_iterations;
-  settings.solver.time_budget_ms = config.time_budget_ms;
-  settings.solver.limits = {};
+  settings.stopping.rule = config.rule;
+  settings.stopping.max_iterations = config.max_iterations;
+  settings.stopping.time_budget_ms = config.time_budget_ms;
+  settings.stopping.limits = {};
   shareStoppingRule(settings);
   settings.local_global.lbfgs_history = config.lbfgs_history;
   settings.block_descent.threads = config.threads;
@@ -94,10 +94,10 @@ BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockD
 Measured measured(MuscleSimulation& simulation, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
                   BlockDescentSolver& yardstick) {
   Measured m;
-  m.frame_ms = stats.solve.total_ms;
+  m.frame_ms = stats.solver.total_ms;
   m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference);
   m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
-  m.iterations = stats.solve.iterations;
+  m.iterations = stats.solver.iterations;
   m.residual = yardstick.residualOf(simulation.state());
   return m;
 }
@@ -168,13 +168,13 @@ int main(int argc, char** argv) {
   // The configurations compared, the node's defaults among them (config/muscle_deformation.yaml).
   Config node_default;
   node_default.label = "node default: " + toString(defaults.solver_kind) + " " +
-                       (defaults.solver.stopping_rule == StoppingRule::time_budget
-                            ? "budget " + std::to_string(static_cast<int>(defaults.solver.time_budget_ms)) + " ms"
-                            : std::to_string(defaults.solver.max_iterations) + " iterations");
+                       (defaults.stopping.rule == StoppingRule::time_budget
+                            ? "budget " + std::to_string(static_cast<int>(defaults.stopping.time_budget_ms)) + " ms"
+                            : std::to_string(defaults.stopping.max_iterations) + " iterations");
   node_default.kind = defaults.solver_kind;
-  node_default.rule = defaults.solver.stopping_rule;
-  node_default.max_iterations = defaults.solver.max_iterations;
-  node_default.time_budget_ms = defaults.solver.time_budget_ms;
+  node_default.rule = defaults.stopping.rule;
+  node_default.max_iterations = defaults.stopping.max_iterations;
+  node_default.time_budget_ms = defaults.stopping.time_budget_ms;
   node_default.lbfgs_history = defaults.local_global.lbfgs_history;
   node_default.threads = defaults.block_descent.threads;
   node_default.node_default = true;
@@ -221,7 +221,7 @@ int main(int argc, char** argv) {
         transforms.push_back(boneTransformsOf(simulation.bones(), gaitPose(bundled, f)));
         const FrameStats stats = simulation.solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm);
         reference.push_back(simulation.state().position);
-        reference_residuals.push_back(stats.solve.residual);
+        reference_residuals.push_back(stats.solver.residual);
       }
       // How settled the references are: a few frames given as many sweeps again.
       for (const std::size_t f : {frame_count / 4, frame_count / 2, (3 * frame_count) / 4}) {
@@ -271,7 +271,7 @@ int main(int argc, char** argv) {
       for (const std::size_t f : poses) {
         const FrameStats stats = simulation.solve(gaitPose(bundled, f), StartMode::cold);
         cold_reference.push_back(simulation.state().position);
-        residuals.push_back(stats.solve.residual);
+        residuals.push_back(stats.solver.residual);
       }
       records.begin();
       records.add("scene", scene_name);

@@ -99,15 +99,15 @@ int main(int argc, char** argv) {
   // The full pipeline, collision included: cold start (rigid pre-transform), then the solve.
   SimulationSettings simulation_settings;
   simulation_settings.model.particles_per_fibre = 20;
-  simulation_settings.solver.stopping_rule = StoppingRule::displacement;
-  simulation_settings.solver.displacement_tolerance_m = 1e-6;
-  simulation_settings.solver.max_iterations = 2000;
+  simulation_settings.verlet.stopping_rule = StoppingRule::displacement;
+  simulation_settings.verlet.displacement_tolerance_m = 1e-6;
+  simulation_settings.verlet.max_iterations = 2000;
   MuscleSimulation simulation(scene.muscles, scene.bones, simulation_settings);
   const MassSpringSystem& system = simulation.system();
   const Pose pose = syntheticThighPose(0.6, 0.9);
   const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
   const FrameStats frame = simulation.solve(pose, StartMode::cold);
-  SolveStats stats = frame.solve;  // the solve behind the surfaces being recorded
+  SolveStats stats = frame.solver;  // the solve behind the surfaces being recorded
   const ParticleState& state = simulation.state();
   std::printf("\nscene: %ld particles, solve %d iterations (%s), %.0f ms, with sphere collision (%d contacts left)\n",
               static_cast<long>(system.particleCount()), stats.iterations, stats.stopping_rule_met ? "converged" : "cap",
@@ -161,7 +161,7 @@ int main(int argc, char** argv) {
     const Skeleton skeleton = Skeleton::fromUrdfFile(resolveScenePath(description, description.urdf_file, resolve));
     const Scene bundled = loadScene(description, skeleton, resolve);
     SimulationSettings bundled_settings;
-    bundled_settings.solver.max_iterations = 200;
+    bundled_settings.verlet.max_iterations = 200;
     MuscleSimulation bundled_simulation(bundled.muscles, bundled.bones, bundled_settings);
     const Pose bundled_pose = poseFromLinkPoses(bundled, skeleton.linkPoses({{"hip_flexion_r", 0.5}, {"knee_angle_r", -1.0}}));
     const FrameStats bundled_frame = bundled_simulation.solve(bundled_pose, StartMode::cold);
@@ -170,9 +170,9 @@ int main(int argc, char** argv) {
     scene_label = "bundled right_hip_thigh (26 muscles)";
     pose_label = "hip_flexion_r 0.5 rad, knee_angle_r -1.0 rad";
     std::printf("\nbundled scene: %ld particles, cold solve %d iterations, %.0f ms, with sphere collision\n",
-                static_cast<long>(bundled_simulation.system().particleCount()), bundled_frame.solve.iterations,
-                bundled_frame.solve.total_ms);
-    stats = bundled_frame.solve;
+                static_cast<long>(bundled_simulation.system().particleCount()), bundled_frame.solver.iterations,
+                bundled_frame.solver.total_ms);
+    stats = bundled_frame.solver;
     for (const Variant& variant : variants()) {
       const SurfaceSkinning skinning(bundled_simulation.system(), bundled.muscles, variant.settings);
       std::vector<Vertices> surfaces;

@@ -38,7 +38,7 @@ double secondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-// SolverSettings documents its automatic fixed step as this share of the stability bound; the bound itself is
+// VerletSettings documents its automatic fixed step as this share of the stability bound; the bound itself is
 // recovered from the step an automatic solver picks, so the fractions below are of the very bound the solver uses.
 constexpr double kAutoStepFraction = 0.9;
 
@@ -174,7 +174,7 @@ std::unique_ptr<ModelContext> makeModel(const BundledScene& bundled, const Model
   model->skinning = std::make_unique<SurfaceSkinning>(model->system(), model->simulation->muscles(), SkinningSettings{});
   model->metrics =
       std::make_unique<DeformationMetrics>(model->simulation->bones(), model->simulation->muscles(), model->system());
-  const VerletSolver automatic(model->system(), SolverSettings{});
+  const VerletSolver automatic(model->system(), VerletSettings{});
   model->stability_bound_s = automatic.timeStep() / kAutoStepFraction;
   return model;
 }
@@ -350,7 +350,7 @@ void runConfig(const Config& config, ModelContext& model, const BundledScene& bu
   double dt_s = 0;
   double factorisation_ms = 0;
   if (config.solver == SolverKind::verlet) {
-    SolverSettings settings;
+    VerletSettings settings;
     settings.dt_rule = config.dt_rule;
     if (config.dt_rule == TimeStepRule::fixed) settings.dt_s = config.dt_fraction * model.stability_bound_s;
     settings.stopping_rule = StoppingRule::iterations;
@@ -390,7 +390,7 @@ void runConfig(const Config& config, ModelContext& model, const BundledScene& bu
       rigidPretransform(system, transforms, start);
     }
     if (verlet) {
-      SolverSettings settings = verlet->settings();
+      VerletSettings settings = verlet->settings();
       verlet = std::make_unique<VerletSolver>(system, settings);  // fresh: the adaptive rule remembers its last step
     }
     const bench::ConvergenceRun run = bench::checkpointedSolve(start, &world, config.cap, solve);
@@ -466,8 +466,8 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
                   bench::JsonRecords& records) {
   SimulationSettings settings = model.simulation->settings();
   settings.solver_kind = solver;
-  settings.solver.stopping_rule = StoppingRule::iterations;
-  settings.solver.max_iterations = iterations_per_frame;
+  settings.verlet.stopping_rule = StoppingRule::iterations;
+  settings.verlet.max_iterations = iterations_per_frame;
   settings.local_global.stopping_rule = StoppingRule::iterations;
   settings.local_global.max_iterations = iterations_per_frame;
   settings.local_global.lbfgs_history = lbfgs_history;
@@ -479,7 +479,7 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
       const Pose pose = gaitPose(bundled, frame);
       const FrameStats stats = stream.solve(pose, StartMode::warm);
       if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
-      solve_ms_sum += stats.solve.total_ms;
+      solve_ms_sum += stats.solver.total_ms;
       const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), pose);
       CollisionWorld& world = model.world(BroadPhaseKind::octree);
       world.setBoneTransforms(transforms);
@@ -487,11 +487,11 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
           measurePoint(model, world, transforms, stream.state().position, model.reference.at(frame), false);
       records.begin();
       addCommon(records, "curve", label, toString(solver), solver == SolverKind::verlet ? "dynamic" : "quasi_static",
-                model.choice.label, "fixed", solver == SolverKind::verlet ? stream.settings().solver.dt_s : 0,
+                model.choice.label, "fixed", solver == SolverKind::verlet ? stream.settings().verlet.dt_s : 0,
                 solver == SolverKind::verlet ? kAutoStepFraction : 0, "octree", "warm", 0, model.particles_per_fibre,
                 frame);
       records.add("iterations", iterations_per_frame);
-      records.add("wall_ms", stats.solve.total_ms);
+      records.add("wall_ms", stats.solver.total_ms);
       addMetrics(records, metrics);
       records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
       records.add("lbfgs_history", lbfgs_history);
@@ -693,7 +693,7 @@ int main(int argc, char** argv) {
       };
       std::vector<CheckSolve> checks;
       {
-        SolverSettings verlet_settings;
+        VerletSettings verlet_settings;
         verlet_settings.stopping_rule = StoppingRule::displacement;
         verlet_settings.displacement_tolerance_m = kReferenceToleranceM;
         verlet_settings.max_iterations = budget.verlet_check_cap;

@@ -45,7 +45,7 @@ double medianSphereRadius(const MassSpringSystem& system) {
 }
 
 bool statsFinite(const FrameStats& stats) {
-  const SolveStats& s = stats.solve;
+  const SolveStats& s = stats.solver;
   const CollisionStats& c = stats.collision;
   for (const double v : {s.mss_ms, s.collision_ms, s.total_ms, s.last_dt_s, s.mean_displacement_m,
                          s.spring_deviation_ratio, s.mean_strain, s.max_strain, s.time_step_s,
@@ -71,14 +71,14 @@ struct Outcome {
 };
 
 void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const FrameStats& stats) {
-  outcome.recoveries += stats.solve.divergence_recoveries;
-  outcome.diverged = outcome.diverged || stats.solve.diverged;
+  outcome.recoveries += stats.solver.divergence_recoveries;
+  outcome.diverged = outcome.diverged || stats.solver.diverged;
   outcome.finite = outcome.finite && stats.finite && simulation.state().position.allFinite() && statsFinite(stats);
   for (const Eigen::Matrix3Xd& fibre : fibrePolylines(simulation.system(), simulation.state().position))
     outcome.finite = outcome.finite && fibre.allFinite();
-  outcome.iterations += stats.solve.iterations;
-  outcome.wall_ms += stats.solve.total_ms;
-  outcome.time_step_s = stats.solve.time_step_s;
+  outcome.iterations += stats.solver.iterations;
+  outcome.wall_ms += stats.solver.total_ms;
+  outcome.time_step_s = stats.solver.time_step_s;
   outcome.max_penetration_bone_m = std::max(outcome.max_penetration_bone_m, stats.collision.max_penetration_muscle_bone_m);
   outcome.max_penetration_muscle_m =
       std::max(outcome.max_penetration_muscle_m, stats.collision.max_penetration_muscle_muscle_m);
@@ -154,15 +154,15 @@ int main(int argc, char** argv) {
   double auto_step_s = 0;
   {
     MuscleSimulation probe(thigh.scene.muscles, thigh.scene.bones, settings);
-    auto_step_s = VerletSolver(probe.system(), settings.solver).timeStep();
+    auto_step_s = VerletSolver(probe.system(), settings.verlet).timeStep();
   }
   SimulationSettings long_step = settings;
-  long_step.solver.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
+  long_step.verlet.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
   poseCase(report, thigh, "dt_x10", "dt 10 x the largest stable step, hip 0.5 rad knee 1.0 rad, cold", long_step,
            walking, false);
   SimulationSettings stiff = settings;
   stiff.model.spring_material_n *= 1000;
-  stiff.solver.dt_s = auto_step_s;
+  stiff.verlet.dt_s = auto_step_s;
   poseCase(report, thigh, "stiffness_x1000", "springs 1000 x stiffer, the previous automatic step, cold", stiff, walking,
            false);
 

@@ -30,9 +30,9 @@ int main(int argc, char** argv) {
 
   const SyntheticScene scene = makeSyntheticThigh();
   SimulationSettings settings;
-  settings.solver.stopping_rule = StoppingRule::displacement;
-  settings.solver.displacement_tolerance_m = 1e-6;
-  settings.solver.max_iterations = 400;
+  settings.verlet.stopping_rule = StoppingRule::displacement;
+  settings.verlet.displacement_tolerance_m = 1e-6;
+  settings.verlet.max_iterations = 400;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const MassSpringSystem& system = simulation.system();
   std::printf("synthetic thigh: %d muscles, %ld particles, %zu springs, bone spheres", system.muscleCount(),
@@ -49,7 +49,7 @@ int main(int argc, char** argv) {
     const double hip = 0.8 * phase, knee = 1.0 * phase;
     const FrameStats stats = simulation.solve(syntheticThighPose(hip, knee), StartMode::warm);
     finite = finite && stats.finite;
-    const SolveStats& solve = stats.solve;
+    const SolveStats& solve = stats.solver;
     std::printf("frame %2d hip %.2f knee %.2f: %3d iterations%s, %6.1f ms (MSS %.1f, collision %.1f), spring deviation "
                 "%.4f, %d contacts, penetration bone %.2f mm muscle %.2f mm\n",
                 frame, hip, knee, solve.iterations, solve.stopping_rule_met ? "" : " (cap)", solve.total_ms,

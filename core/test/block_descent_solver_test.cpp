@@ -98,7 +98,7 @@ TEST(BlockDescent, StretchedBlockMatchesAnIndependentSolverAndIsAtRestWhenUnload
   BlockDescentSolver block(pulled, converging(20000, 1e-11));
   stats = block.solve(descent);
   EXPECT_TRUE(stats.converged);
-  SolverSettings verlet_settings;
+  VerletSettings verlet_settings;
   verlet_settings.max_iterations = 200000;
   verlet_settings.stopping_rule = StoppingRule::displacement;
   verlet_settings.displacement_tolerance_m = 1e-13;
@@ -133,7 +133,7 @@ TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
 
 TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
   const MassSpringSystem system = fixedChain(3);
-  SolverSettings verlet;
+  VerletSettings verlet;
   verlet.stopping_rule = StoppingRule::force_residual;
   EXPECT_THROW(VerletSolver(system, verlet), std::invalid_argument);
   LocalGlobalSettings local_global;
@@ -228,7 +228,7 @@ TEST(BlockDescent, BonesAsDistanceFieldsKeepEveryParticleOutAfterALargePoseJumpO
     EXPECT_EQ(rest.collision.muscle_bone_contacts, 0) << "the rest pose has no bone contact";
     const FrameStats jump = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);
     EXPECT_TRUE(jump.finite);
-    EXPECT_FALSE(jump.solve.diverged);
+    EXPECT_FALSE(jump.solver.diverged);
     // Every free particle (not only boundary ones) within a tenth of a millimetre of its clearance.
     EXPECT_LT(jump.collision.max_penetration_muscle_bone_m, 1e-4);
     positions[threads - 1] = simulation.state().position;
@@ -251,7 +251,7 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
     simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
     const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
     positions[threads - 1] = simulation.state().position;
-    contacts[threads - 1] = stats.solve.contacts;
+    contacts[threads - 1] = stats.solver.contacts;
   }
   EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
   EXPECT_EQ(contacts[0], contacts[1]);
@@ -293,7 +293,7 @@ TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {
   simulation.solve(syntheticThighPose(0, 0), StartMode::cold);
   const FrameStats stats = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);  // ~90 and ~115 degrees
   EXPECT_TRUE(stats.finite);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_FALSE(stats.solver.diverged);
   EXPECT_TRUE(simulation.state().position.allFinite());
   double median_radius = 0;
   {

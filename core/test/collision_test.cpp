@@ -687,7 +687,7 @@ TEST(CollisionIntegration, SmallMusclePressedAgainstABonePlateEndsOutsideThePlat
   md::CollisionWorld world(system, {plate_bone});
   world.setBoneTransforms({Eigen::Isometry3d(Eigen::Translation3d(0, 0, 0.008))});
 
-  md::SolverSettings solver_settings;
+  md::VerletSettings solver_settings;
   solver_settings.max_iterations = 400;
   md::VerletSolver solver(system, solver_settings);
   auto state = md::restState(system);

@@ -14,7 +14,7 @@ PipelineSettings smallSettings() {
   PipelineSettings settings;
   settings.simulation.model.particles_per_fibre = 10;
   settings.simulation.model.nearest_neighbours = 8;
-  settings.simulation.solver.max_iterations = 30;
+  settings.simulation.verlet.max_iterations = 30;
   return settings;
 }
 
@@ -38,9 +38,9 @@ TEST(DeformationPipeline, SkinsAndMeasuresOnlyWhatTheCallerAsksFor) {
   ASSERT_TRUE(pipeline.metricsProblem().empty()) << pipeline.metricsProblem();
   const Pose pose = syntheticThighPose(0.3, 0.2);
 
-  const PipelineFrame& bare = pipeline.solve(pose, StartMode::cold, false, false);
-  EXPECT_TRUE(bare.solve.finite);
-  EXPECT_EQ(bare.solve.solve.iterations, 30);
+  const FrameResult& bare = pipeline.solve(pose, StartMode::cold, false, false);
+  EXPECT_TRUE(bare.stats.finite);
+  EXPECT_EQ(bare.stats.solver.iterations, 30);
   EXPECT_FALSE(bare.has_surfaces);
   EXPECT_FALSE(bare.has_metrics);
   const BoneTransforms expected = boneTransformsOf(pipeline.simulation().bones(), pose);
@@ -48,8 +48,8 @@ TEST(DeformationPipeline, SkinsAndMeasuresOnlyWhatTheCallerAsksFor) {
   for (std::size_t b = 0; b < expected.size(); ++b)
     EXPECT_TRUE(bare.bone_transforms[b].isApprox(expected[b], 0.0)) << "bone " << b;
 
-  const PipelineFrame& skinned = pipeline.solve(pose, StartMode::warm, true, false);
-  EXPECT_TRUE(skinned.solve.warm_started);
+  const FrameResult& skinned = pipeline.solve(pose, StartMode::warm, true, false);
+  EXPECT_TRUE(skinned.stats.warm_started);
   ASSERT_TRUE(skinned.has_surfaces);
   EXPECT_FALSE(skinned.has_metrics);
   ASSERT_EQ(skinned.surfaces.size(), 2u);
@@ -59,7 +59,7 @@ TEST(DeformationPipeline, SkinsAndMeasuresOnlyWhatTheCallerAsksFor) {
   }
 
   // Metrics need surfaces, so asking for metrics alone skins too.
-  const PipelineFrame& measured = pipeline.solve(pose, StartMode::warm, false, true);
+  const FrameResult& measured = pipeline.solve(pose, StartMode::warm, false, true);
   EXPECT_TRUE(measured.has_surfaces);
   ASSERT_TRUE(measured.has_metrics);
   ASSERT_EQ(measured.metrics.muscles.size(), 2u);
@@ -80,6 +80,18 @@ TEST(DeformationPipeline, ParticlesAreExactlyThoseOfTheSimulationItWraps) {
   }
 }
 
+TEST(DeformationPipeline, TheFrameResultReadsTheParticlesInPlaceWithoutCopying) {
+  DeformationPipeline pipeline = twoMusclePipeline(smallSettings());
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, false);
+  EXPECT_EQ(&frame.positions(), &pipeline.simulation().state().position);
+  EXPECT_EQ(&frame.particles(), &pipeline.simulation().system());
+  EXPECT_EQ(&frame.muscles(), &pipeline.descriptions());
+  EXPECT_EQ(&frame.bones(), &pipeline.bones());
+  ASSERT_TRUE(frame.has_surfaces);
+  for (std::size_t m = 0; m < frame.surfaces.size(); ++m)
+    EXPECT_EQ(&frame.surfaceTriangles(m), &pipeline.skinning()->muscles()[m].triangles()) << "muscle " << m;
+}
+
 TEST(DeformationPipeline, AnOpenMuscleSurfaceTurnsSurfacesOffWithTheReasonAndTheParticlesStillSolve) {
   SyntheticScene scene = makeSyntheticThigh(2, 4);
   TriangleMesh& surface = scene.muscles[1].surface;
@@ -91,8 +103,8 @@ TEST(DeformationPipeline, AnOpenMuscleSurfaceTurnsSurfacesOffWithTheReasonAndThe
       << pipeline.metricsProblem();
   EXPECT_EQ(pipeline.skinning(), nullptr);
   EXPECT_EQ(pipeline.metrics(), nullptr);
-  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
-  EXPECT_TRUE(frame.solve.finite);
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_TRUE(frame.stats.finite);
   EXPECT_FALSE(frame.has_surfaces);
   EXPECT_FALSE(frame.has_metrics);
   EXPECT_NE(pipeline.describe().find("no surfaces: "), std::string::npos) << pipeline.describe();
@@ -105,7 +117,7 @@ TEST(DeformationPipeline, SurfacesAndMetricsTurnedOffBySettingsSaySo) {
   DeformationPipeline pipeline = twoMusclePipeline(settings);
   EXPECT_EQ(pipeline.skinningProblem(), "turned off (surfaces and surface_metrics are false)");
   EXPECT_EQ(pipeline.metricsProblem(), "turned off (surface_metrics is false)");
-  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
   EXPECT_FALSE(frame.has_surfaces);
   EXPECT_FALSE(frame.has_metrics);
   const std::string description = pipeline.describe();
@@ -129,10 +141,10 @@ TEST(DeformationPipeline, FiguresTurnedOffBySettingsAreListedWithTheSettingThatT
   EXPECT_EQ(absent[2].remedy, "set surface_metrics: true");
   for (const AbsentMetric& a : absent) EXPECT_TRUE(a.turned_off) << a.describe();
 
-  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
-  EXPECT_LT(frame.solve.solve.residual, 0);
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  EXPECT_LT(frame.stats.solver.residual, 0);
   EXPECT_NE(frame.residual_absent_reason.find("verlet solver does not measure it"), std::string::npos);
-  EXPECT_FALSE(frame.solve.has_collision);
+  EXPECT_FALSE(frame.stats.has_collision);
   EXPECT_EQ(frame.collision_absent_reason, "collisions are off");
   EXPECT_FALSE(frame.has_metrics);
   EXPECT_EQ(frame.metrics_absent_reason, "turned off (surface_metrics is false)");
@@ -153,23 +165,23 @@ TEST(DeformationPipeline, ADefectiveBoneTurnsTheSurfaceMetricsOffWithAReasonNami
   EXPECT_NE(absent[0].reason.find("bone '" + scene.bones[1].name + "'"), std::string::npos) << absent[0].reason;
   EXPECT_NE(absent[0].remedy.find("closed surface"), std::string::npos) << absent[0].remedy;
 
-  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, true);
   EXPECT_TRUE(frame.has_surfaces);
   EXPECT_FALSE(frame.has_metrics);
   EXPECT_EQ(frame.metrics_absent_reason, absent[0].reason);
-  EXPECT_GE(frame.solve.solve.residual, 0);
+  EXPECT_GE(frame.stats.solver.residual, 0);
   EXPECT_EQ(frame.residual_absent_reason, "");
-  EXPECT_TRUE(frame.solve.has_collision);
+  EXPECT_TRUE(frame.stats.has_collision);
   EXPECT_EQ(frame.collision_absent_reason, "");
 }
 
 TEST(DeformationPipeline, MetricsNotAskedForInASolveSaySo) {
   DeformationPipeline pipeline = twoMusclePipeline(smallSettings());
   ASSERT_NE(pipeline.metrics(), nullptr);
-  const PipelineFrame& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, false);
+  const FrameResult& frame = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::cold, true, false);
   EXPECT_FALSE(frame.has_metrics);
   EXPECT_EQ(frame.metrics_absent_reason, "not asked for in this solve");
-  const PipelineFrame& measured = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::warm, false, true);
+  const FrameResult& measured = pipeline.solve(syntheticThighPose(0.3, 0.2), StartMode::warm, false, true);
   EXPECT_TRUE(measured.has_metrics);
   EXPECT_EQ(measured.metrics_absent_reason, "");
 }
@@ -180,8 +192,8 @@ TEST(DeformationPipeline, AFrameFromBoneTransformsIsTheFrameFromThePose) {
   for (const double hip : {0.2, 0.5}) {
     const Pose pose = syntheticThighPose(hip, 0.3);
     const BoneTransforms transforms = boneTransformsOf(from_transforms.simulation().bones(), pose);
-    const PipelineFrame& a = from_pose.solve(pose, StartMode::warm, true, false);
-    const PipelineFrame& b = from_transforms.solve(transforms, StartMode::warm, true, false);
+    const FrameResult& a = from_pose.solve(pose, StartMode::warm, true, false);
+    const FrameResult& b = from_transforms.solve(transforms, StartMode::warm, true, false);
     EXPECT_EQ(from_pose.simulation().state().position, from_transforms.simulation().state().position);
     ASSERT_TRUE(a.has_surfaces && b.has_surfaces);
     EXPECT_EQ(a.surfaces[0], b.surfaces[0]);

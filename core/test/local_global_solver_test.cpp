@@ -153,7 +153,7 @@ TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
   const double start_energy = springEnergy(system, start.position);
 
   for (const double factor : {10.0, 100.0}) {
-    SolverSettings verlet_settings;
+    VerletSettings verlet_settings;
     verlet_settings.mass_rule = MassRule::uniform;
     verlet_settings.dt_s = factor * bound;
     verlet_settings.max_iterations = 200;
@@ -402,7 +402,7 @@ TEST(LocalGlobalSolver, MuscleSimulationRunsTheChosenSolver) {
   for (const double hip : {0.2, 0.4}) {
     const FrameStats stats = simulation.solve(syntheticThighPose(hip, 0.5), StartMode::warm);
     EXPECT_TRUE(stats.finite);
-    EXPECT_GT(stats.solve.iterations, 0);
-    EXPECT_LT(stats.solve.max_strain, 0.6);  // the Verlet solver leaves up to 0.5 on this coarse model
+    EXPECT_GT(stats.solver.iterations, 0);
+    EXPECT_LT(stats.solver.max_strain, 0.6);  // the Verlet solver leaves up to 0.5 on this coarse model
   }
 }

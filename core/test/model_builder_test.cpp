@@ -454,7 +454,7 @@ TEST(RigidPretransform, RigidMotionOfTheWholeSceneLeavesTheSpringsAtRest) {
   const Eigen::Isometry3d motion = Eigen::Translation3d(0.3, 0, 0) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitY());
   ParticleState state;
   rigidPretransform(system, {motion, motion}, state);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = 1e-12;
   VerletSolver solver(system, settings);

@@ -71,7 +71,7 @@ TEST(SettingsTable, AYamlFileIsReadThroughTheTableAndABadValueNamesFileAndKey) {
                          "attachment_distance_m: 0\n";
   md::CoreSettings settings = md::nodeDefaultSettings();
   md::readSettingsYaml(path.string(), settings);
-  EXPECT_EQ(settings.pipeline.simulation.solver.max_iterations, 45);
+  EXPECT_EQ(settings.pipeline.simulation.stopping.max_iterations, 45);
   EXPECT_EQ(settings.pipeline.simulation.solver_kind, md::SolverKind::local_global);
   EXPECT_FALSE(settings.pipeline.simulation.model.fix_fibre_ends);
   EXPECT_EQ(settings.pipeline.simulation.model.attachment_distance_m, 0.0);  // an integer where a number is asked

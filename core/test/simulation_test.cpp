@@ -13,7 +13,7 @@ SimulationSettings smallSettings() {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
-  settings.solver.max_iterations = 50;
+  settings.verlet.max_iterations = 50;
   return settings;
 }
 

@@ -43,7 +43,7 @@ double secondsOf(const std::function<void()>& run) {
 TEST(SolveLimits, WallTimeLimitEndsAVerletSolveUnderTheIterationsRule) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(50, state);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::iterations;
   settings.max_iterations = std::numeric_limits<int>::max();  // unbounded but for the limit
   settings.limits.wall_time_limit_ms = 50;
@@ -86,7 +86,7 @@ TEST(SolveLimits, RaisedCancelFlagStopsTheSolveAfterOneIteration) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(20, state);
   std::atomic<bool> cancel{true};
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 1000000;
   settings.limits.cancel = &cancel;
   VerletSolver solver(system, settings);
@@ -99,7 +99,7 @@ TEST(SolveLimits, RaisedCancelFlagStopsTheSolveAfterOneIteration) {
 TEST(SolveLimits, SetStoppingChangesLaterSolvesWithoutRebuilding) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(20, state);
-  VerletSolver solver(system, SolverSettings());
+  VerletSolver solver(system, VerletSettings());
   solver.setStopping(StoppingRule::iterations, 7, 1e-6, 16, SolveLimits());
   EXPECT_EQ(solver.solve(state).iterations, 7);
   EXPECT_THROW(solver.setStopping(StoppingRule::iterations, -1, 1e-6, 16, SolveLimits()), std::invalid_argument);
@@ -109,7 +109,7 @@ TEST(Converged, OnlyWhenTheDisplacementToleranceIsMet) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(8, state);
   const ParticleState start = state;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 50;  // far from settled
   VerletSolver by_count(system, settings);
   const SolveStats counted = by_count.solve(state);

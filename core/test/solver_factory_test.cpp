@@ -17,7 +17,7 @@ SimulationSettings smallSettings(SolverKind kind) {
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
   settings.solver_kind = kind;
-  settings.solver.max_iterations = 25;
+  settings.verlet.max_iterations = 25;
   settings.local_global.max_iterations = 6;
   settings.collisions = false;  // the solver alone
   return settings;
@@ -47,12 +47,12 @@ TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStar
     ParticleState state = restState(system);
     rigidPretransform(system, boneTransformsOf(scene.bones, pose), state);
     const std::unique_ptr<SoftBodySolver> solver =
-        makeSolver(SolverChoice{kind, settings.solver, settings.local_global}, system);
+        makeSolver(SolverChoice{kind, settings.verlet, settings.local_global}, system);
     const SolveStats direct = solver->solve(state);
 
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);
     const FrameStats through_simulation = simulation.solve(pose, StartMode::cold);
-    EXPECT_EQ(through_simulation.solve.iterations, direct.iterations) << toString(kind);
+    EXPECT_EQ(through_simulation.solver.iterations, direct.iterations) << toString(kind);
     EXPECT_EQ(simulation.state().position, state.position) << toString(kind);
   }
 }
@@ -62,6 +62,6 @@ TEST(SolverFactory, NewStoppingReachesWhicheverSolverRuns) {
     SyntheticScene scene = makeSyntheticThigh(1, 4);
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), smallSettings(kind));
     simulation.setStopping(StoppingRule::iterations, 3, 1e-6, 16.0, SolveLimits{});
-    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solve.iterations, 3) << toString(kind);
+    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solver.iterations, 3) << toString(kind);
   }
 }

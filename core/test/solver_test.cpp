@@ -22,7 +22,7 @@ MassSpringSystem twoParticleSpring() {
 
 // Iterations until the spring stays within 1e-4 of its rest length and both particles are (nearly) at rest.
 int iterationsToSettle(const MassSpringSystem& system, double damping_scale, double dt) {
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_s = dt;
   settings.damping_scale = damping_scale;
   VerletSolver solver(system, settings);
@@ -58,7 +58,7 @@ MassSpringSystem fixedChain(int links) {
 
 TEST(Spring, AtRestLengthExertsNoForce) {
   const MassSpringSystem system = twoParticleSpring();
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 10;
   VerletSolver solver(system, settings);
   ParticleState state = stateAt(system.rest_position);
@@ -68,7 +68,7 @@ TEST(Spring, AtRestLengthExertsNoForce) {
 
 TEST(Spring, StretchedSpringPullsBothEndsTowardsEachOtherEqually) {
   const MassSpringSystem system = twoParticleSpring();
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_s = 0.01;
   VerletSolver solver(system, settings);
   ParticleState state = stateAt(system.rest_position);
@@ -103,7 +103,7 @@ TEST(Chain, StretchedBetweenFixedEndsConvergesToUniformStrain) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, links) = 1.5 * links;  // pull the right end: every spring should end 50 % longer
   state.previous_position = state.position;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = 1e-12;
   settings.max_iterations = 200000;
@@ -126,7 +126,7 @@ TEST(FixedParticles, NeverMove) {
   state.position(1, 2) = 0.7;  // disturb a free particle so forces act on the fixed ends too
   state.previous_position = state.position;
   const Eigen::Vector3d left = state.position.col(0), right = state.position.col(links);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 500;
   VerletSolver solver(system, settings);
   solver.solve(state);
@@ -156,7 +156,7 @@ TEST(AdaptiveTimeStep, KeepsEveryBoundaryParticleStepWithinItsRadius) {
   state.position.col(0) = positions.col(0);
   state.previous_position = state.position;
 
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_rule = TimeStepRule::adaptive;
   settings.dt_min_s = 1e-12;  // let the rule, not the clamp, decide
   VerletSolver solver(system, settings);
@@ -179,7 +179,7 @@ TEST(AdaptiveTimeStep, NeverExceedsTheFixedStepOrFallsBelowTheClamp) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, links) = 2.0 * links;
   state.previous_position = state.position;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_rule = TimeStepRule::adaptive;
   settings.dt_s = 0.2;
   settings.dt_min_s = 0.01;
@@ -194,7 +194,7 @@ TEST(AdaptiveTimeStep, NeverExceedsTheFixedStepOrFallsBelowTheClamp) {
 TEST(StoppingRule, FixedIterationCountRunsExactlyThatMany) {
   const MassSpringSystem system = fixedChain(4);
   ParticleState state = stateAt(system.rest_position);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 37;
   VerletSolver solver(system, settings);
   EXPECT_EQ(solver.solve(state).iterations, 37);
@@ -203,7 +203,7 @@ TEST(StoppingRule, FixedIterationCountRunsExactlyThatMany) {
 TEST(StoppingRule, DisplacementStopsEarlyAtRest) {
   const MassSpringSystem system = fixedChain(4);
   ParticleState state = stateAt(system.rest_position);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = 1e-9;
   settings.max_iterations = 1000;
@@ -219,7 +219,7 @@ TEST(StoppingRule, DisplacementDoesNotStopWhileASolveFromRestIsSpeedingUp) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 20;
   state.previous_position = state.position;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_s = 1e-4;  // tiny steps: the first displacements are far below the tolerance
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = 1e-6;
@@ -233,7 +233,7 @@ TEST(StoppingRule, TimeBudgetEndsTheSolveAfterTheBudget) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 2000) = 3000;
   state.previous_position = state.position;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::time_budget;
   settings.time_budget_ms = 5.0;
   settings.max_iterations = 100000000;
@@ -249,7 +249,7 @@ TEST(StoppingRule, DisplacementReportsNotMetWhenTheCapEndsTheSolve) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 20;
   state.previous_position = state.position;
-  SolverSettings settings;
+  VerletSettings settings;
   settings.stopping_rule = StoppingRule::displacement;
   settings.displacement_tolerance_m = 1e-15;
   settings.max_iterations = 3;
@@ -261,17 +261,17 @@ TEST(StoppingRule, DisplacementReportsNotMetWhenTheCapEndsTheSolve) {
 
 TEST(Solver, RejectsAStateOfTheWrongSize) {
   const MassSpringSystem system = fixedChain(3);
-  VerletSolver solver(system, SolverSettings{});
+  VerletSolver solver(system, VerletSettings{});
   ParticleState state = stateAt(Eigen::Matrix3Xd::Zero(3, 2));
   EXPECT_THROW(solver.solve(state), std::invalid_argument);
 }
 
 TEST(Solver, RejectsNegativeSettings) {
   const MassSpringSystem system = fixedChain(3);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.dt_s = -1;
   EXPECT_THROW(VerletSolver(system, settings), std::invalid_argument);
-  settings = SolverSettings{};
+  settings = VerletSettings{};
   settings.max_iterations = -5;
   EXPECT_THROW(VerletSolver(system, settings), std::invalid_argument);
 }
@@ -279,7 +279,7 @@ TEST(Solver, RejectsNegativeSettings) {
 TEST(Solver, CollisionHookRunsAfterEveryUpdateAndItsTimeIsCounted) {
   const MassSpringSystem system = fixedChain(3);
   ParticleState state = stateAt(system.rest_position);
-  SolverSettings settings;
+  VerletSettings settings;
   settings.max_iterations = 12;
   VerletSolver solver(system, settings);
   int calls = 0;

@@ -34,7 +34,7 @@ SimulationSettings smallSettings() {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
-  settings.solver.max_iterations = 100;  // the node's default
+  settings.verlet.max_iterations = 100;  // the node's default
   // The fixture's muscles end beside their bones by construction, to be fixed there: these cases test the solver on
   // that model (the tendon model's hard cases are measured on the bundled scene by the stability benchmark).
   settings.model.tendons = false;
@@ -42,7 +42,7 @@ SimulationSettings smallSettings() {
 }
 
 bool statsFinite(const FrameStats& stats) {
-  const SolveStats& s = stats.solve;
+  const SolveStats& s = stats.solver;
   const CollisionStats& c = stats.collision;
   const double values[] = {s.mss_ms, s.collision_ms, s.total_ms, s.last_dt_s, s.min_dt_s, s.max_dt_s,
                            s.mean_displacement_m, s.spring_deviation_ratio, s.mean_strain, s.max_strain,
@@ -78,13 +78,13 @@ Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& 
 // iteration is below 1e-9 m (or 20000 iterations).
 Eigen::Matrix3Xd convergedShape(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                 SimulationSettings settings, const Pose& pose) {
-  settings.solver.dt_s = 0;
-  settings.solver.stopping_rule = StoppingRule::displacement;
-  settings.solver.displacement_tolerance_m = 1e-9;
-  settings.solver.max_iterations = 20000;
+  settings.verlet.dt_s = 0;
+  settings.verlet.stopping_rule = StoppingRule::displacement;
+  settings.verlet.displacement_tolerance_m = 1e-9;
+  settings.verlet.max_iterations = 20000;
   MuscleSimulation reference(muscles, bones, settings);
   const FrameStats stats = reference.solve(pose, StartMode::cold);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   return reference.state().position;
 }
 
@@ -98,14 +98,14 @@ double medianSphereRadius(const MassSpringSystem& system) {
 }
 
 // The largest step the automatic rule considers stable for this model (it takes 0.9 of it).
-double largestStableStep(const MassSpringSystem& system) { return VerletSolver(system, SolverSettings{}).timeStep() / 0.9; }
+double largestStableStep(const MassSpringSystem& system) { return VerletSolver(system, VerletSettings{}).timeStep() / 0.9; }
 
 // The checks every hard case shares, for a solve where nothing should diverge.
 void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const FrameStats& stats,
                                     const Eigen::Matrix3Xd& converged, const Eigen::Matrix3Xd& pretransform) {
   expectAllFinite(simulation, stats);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
   const double error_m = rmsDistance(simulation.state().position, converged);
   const double start_error_m = rmsDistance(pretransform, converged);
   EXPECT_LE(error_m, start_error_m) << "RMS to the converged shape " << error_m * 1e3 << " mm, the pre-transform "
@@ -117,7 +117,7 @@ void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const Fr
               "step %.3f of the divergence size bound\n",
               error_m * 1e3, start_error_m * 1e3, stats.collision.max_penetration_muscle_bone_m * 1e3,
               medianSphereRadius(simulation.system()) * 1e3,
-              stats.solve.peak_mean_displacement_m / (DivergenceMonitor::kStepFraction * mean_rest_m));
+              stats.solver.peak_mean_displacement_m / (DivergenceMonitor::kStepFraction * mean_rest_m));
 }
 
 }  // namespace
@@ -179,20 +179,20 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
   const double stable_s = largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
-  settings.solver.dt_s = 10 * stable_s;
+  settings.verlet.dt_s = 10 * stable_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
 
   expectAllFinite(simulation, stats);
-  EXPECT_GT(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
+  EXPECT_GT(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
   EXPECT_LE(rmsDistance(simulation.state().position, converged),
             rmsDistance(pretransformOf(simulation, pose), converged));
   std::printf("%d recoveries, step now %.3f x the stability bound, RMS to converged %.2f mm (pre-transform %.2f mm), "
               "bone penetration %.2f mm\n",
-              stats.solve.divergence_recoveries, stats.solve.time_step_s / stable_s,
+              stats.solver.divergence_recoveries, stats.solver.time_step_s / stable_s,
               rmsDistance(simulation.state().position, converged) * 1e3,
               rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
               stats.collision.max_penetration_muscle_bone_m * 1e3);
@@ -200,25 +200,25 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   // Recovery restarts from exactly the entry state: the result is the one a solve with the final step from the
   // start gives.
   SimulationSettings halved = settings;
-  halved.solver.dt_s = stats.solve.time_step_s;
+  halved.verlet.dt_s = stats.solver.time_step_s;
   MuscleSimulation direct(scene.muscles, scene.bones, halved);
   const FrameStats direct_stats = direct.solve(pose, StartMode::cold);
-  EXPECT_EQ(direct_stats.solve.divergence_recoveries, 0);
+  EXPECT_EQ(direct_stats.solver.divergence_recoveries, 0);
   EXPECT_EQ(rmsDistance(simulation.state().position, direct.state().position), 0.0);
 
   // The recovered step is stable, not just stable for 100 iterations: a long solve with it settles without any
   // recovery. (stabilityTimeStep is a Gershgorin bound, conservative: the step found may lie a little above it.)
-  halved.solver.max_iterations = 5000;
-  halved.solver.stopping_rule = StoppingRule::displacement;
+  halved.verlet.max_iterations = 5000;
+  halved.verlet.stopping_rule = StoppingRule::displacement;
   MuscleSimulation long_solve(scene.muscles, scene.bones, halved);
   const FrameStats long_stats = long_solve.solve(pose, StartMode::cold);
-  EXPECT_EQ(long_stats.solve.divergence_recoveries, 0);
-  EXPECT_TRUE(long_stats.solve.stopping_rule_met);
+  EXPECT_EQ(long_stats.solver.divergence_recoveries, 0);
+  EXPECT_TRUE(long_stats.solver.stopping_rule_met);
 
   // The halved step is kept: the next frame does not diverge again.
   const FrameStats next = simulation.solve(syntheticThighPose(50 * kDegree, 35 * kDegree), StartMode::warm);
-  EXPECT_EQ(next.solve.divergence_recoveries, 0);
-  EXPECT_EQ(next.solve.time_step_s, stats.solve.time_step_s);
+  EXPECT_EQ(next.solver.divergence_recoveries, 0);
+  EXPECT_EQ(next.solver.time_step_s, stats.solver.time_step_s);
   expectAllFinite(simulation, next);
 }
 
@@ -226,17 +226,17 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
   const double previous_step_s = VerletSolver(MuscleSimulation(scene.muscles, scene.bones, settings).system(),
-                                              SolverSettings{}).timeStep();
+                                              VerletSettings{}).timeStep();
   settings.model.spring_material_n *= 1000;
-  settings.solver.dt_s = previous_step_s;
+  settings.verlet.dt_s = previous_step_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
 
   expectAllFinite(simulation, stats);
-  EXPECT_GT(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
-  EXPECT_LE(stats.solve.time_step_s, largestStableStep(simulation.system()));
+  EXPECT_GT(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
+  EXPECT_LE(stats.solver.time_step_s, largestStableStep(simulation.system()));
   // A uniform stiffness scale changes the dynamics, not the equilibrium (no external force): the converged shape of
   // the original stiffness is the reference.
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
@@ -245,7 +245,7 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, medianSphereRadius(simulation.system()));
   std::printf("%d recoveries, step now %.4f x the previous one, RMS to converged %.2f mm (pre-transform %.2f mm), "
               "bone penetration %.2f mm\n",
-              stats.solve.divergence_recoveries, stats.solve.time_step_s / previous_step_s,
+              stats.solver.divergence_recoveries, stats.solver.time_step_s / previous_step_s,
               rmsDistance(simulation.state().position, converged) * 1e3,
               rmsDistance(pretransformOf(simulation, pose), converged) * 1e3,
               stats.collision.max_penetration_muscle_bone_m * 1e3);
@@ -255,13 +255,13 @@ TEST(Stability, EveryAttemptDivergingLeavesTheEntryStateAndSaysSo) {
   // A step 10^4 x too long needs 14 halvings, more than the solver allows.
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
-  settings.solver.dt_s = 1e4 * largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
+  settings.verlet.dt_s = 1e4 * largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
   expectAllFinite(simulation, stats);
-  EXPECT_TRUE(stats.solve.diverged);
-  EXPECT_EQ(stats.solve.divergence_recoveries, VerletSolver::kMaxRecoveries);
+  EXPECT_TRUE(stats.solver.diverged);
+  EXPECT_EQ(stats.solver.divergence_recoveries, VerletSolver::kMaxRecoveries);
   EXPECT_EQ(rmsDistance(simulation.state().position, pretransformOf(simulation, pose)), 0.0);
 }
 
@@ -305,7 +305,7 @@ TEST(Stability, TwoMusclesStartingInterpenetratedByFiveMillimetres) {
   EXPECT_GT(simulation.restOverlaps().muscle_muscle_pairs, 0);
   const FrameStats rest = simulation.solve(Pose{}, StartMode::cold);
   expectAllFinite(simulation, rest);
-  EXPECT_EQ(rest.solve.divergence_recoveries, 0);
+  EXPECT_EQ(rest.solver.divergence_recoveries, 0);
   EXPECT_LT((simulation.state().position - simulation.system().rest_position).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_EQ(rest.collision.max_penetration_muscle_muscle_m, 0.0);
 
@@ -348,7 +348,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
     const FrameStats stats = simulation.solve(pose, StartMode::warm);
     SCOPED_TRACE("rod at x = " + std::to_string(x));
     expectAllFinite(simulation, stats);
-    EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+    EXPECT_EQ(stats.solver.divergence_recoveries, 0);
     worst_penetration_m = std::max(worst_penetration_m, stats.collision.max_penetration_muscle_bone_m);
   }
   EXPECT_LE(worst_penetration_m, radius_m);
@@ -360,7 +360,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
   for (int frame = 0; frame < 5; ++frame) {
     const FrameStats after = simulation.solve(gone, StartMode::warm);
     expectAllFinite(simulation, after);
-    EXPECT_EQ(after.solve.divergence_recoveries, 0);
+    EXPECT_EQ(after.solver.divergence_recoveries, 0);
     const double rms_m = rmsDistance(simulation.state().position, simulation.system().rest_position);
     EXPECT_LT(rms_m, previous_rms_m);
     previous_rms_m = rms_m;
@@ -429,9 +429,9 @@ TEST(Stability, AMuscleWhoseParticlesAreAllFixed) {
       Eigen::Isometry3d(Eigen::Translation3d(0.01, 0.02, 0.03) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitX()));
   const FrameStats stats = simulation.solve(pose, StartMode::cold);
   expectAllFinite(simulation, stats);
-  EXPECT_EQ(stats.solve.divergence_recoveries, 0);
-  EXPECT_FALSE(stats.solve.diverged);
-  EXPECT_EQ(stats.solve.mean_displacement_m, 0.0);
+  EXPECT_EQ(stats.solver.divergence_recoveries, 0);
+  EXPECT_FALSE(stats.solver.diverged);
+  EXPECT_EQ(stats.solver.mean_displacement_m, 0.0);
   // Every particle rides its bone rigidly.
   EXPECT_LT((simulation.state().position - pretransformOf(simulation, pose)).cwiseAbs().maxCoeff(), 1e-15);
 }
@@ -459,7 +459,7 @@ TEST(Stability, AGaitLikeSweepNeverTriggersTheDivergenceCheck) {
                          StartMode::warm);
     SCOPED_TRACE("frame " + std::to_string(frame));
     expectAllFinite(simulation, stats);
-    EXPECT_EQ(stats.solve.divergence_recoveries, 0);
+    EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   }
 }
 
@@ -471,7 +471,7 @@ TEST(Stability, LocalGlobalSolverStaysFiniteOnTheHardPoses) {
   for (const Pose& pose : {syntheticThighPose(90 * kDegree, 0), syntheticThighPose(110 * kDegree, 130 * kDegree)}) {
     const FrameStats stats = simulation.solve(pose, StartMode::warm);
     expectAllFinite(simulation, stats);
-    EXPECT_FALSE(stats.solve.diverged);
+    EXPECT_FALSE(stats.solver.diverged);
   }
 }
 

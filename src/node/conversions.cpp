@@ -138,9 +138,11 @@ Eigen::VectorXf particleStrains(const MassSpringSystem& system, const Eigen::Mat
   return strain;
 }
 
-visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
-                                                const std::vector<MuscleDescription>& muscles,
-                                                const std_msgs::Header& header, bool colour_by_strain) {
+visualization_msgs::MarkerArray fibresToMarkers(const FrameResult& frame, const std_msgs::Header& header,
+                                                bool colour_by_strain) {
+  const MassSpringSystem& system = frame.particles();
+  const Eigen::Matrix3Xd& positions = frame.positions();
+  const std::vector<MuscleDescription>& muscles = frame.muscles();
   visualization_msgs::MarkerArray array;
   const int muscle_count = system.muscleCount();
   array.markers.reserve(static_cast<std::size_t>(muscle_count));
@@ -169,8 +171,9 @@ visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, 
   return array;
 }
 
-sensor_msgs::PointCloud2 particlesToCloud(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
-                                          const std_msgs::Header& header) {
+sensor_msgs::PointCloud2 particlesToCloud(const FrameResult& frame, const std_msgs::Header& header) {
+  const MassSpringSystem& system = frame.particles();
+  const Eigen::Matrix3Xd& positions = frame.positions();
   const Eigen::VectorXf strain = particleStrains(system, positions);
   pcl::PointCloud<ParticlePoint> cloud;
   cloud.resize(static_cast<std::size_t>(system.particleCount()));
@@ -194,15 +197,14 @@ sensor_msgs::PointCloud2 particlesToCloud(const MassSpringSystem& system, const 
   return message;
 }
 
-muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skinning,
-                                                     const std::vector<Vertices>& surfaces,
-                                                     const std::vector<MuscleDescription>& muscles,
-                                                     const std_msgs::Header& header) {
+muscle_deformation::MuscleSurfaces surfacesToMessage(const FrameResult& frame, const std_msgs::Header& header) {
   muscle_deformation::MuscleSurfaces message;
   message.header = header;
-  const std::vector<MuscleSkin>& skins = skinning.muscles();
-  message.muscles.resize(skins.size());
-  for (std::size_t m = 0; m < skins.size(); ++m) {
+  if (!frame.has_surfaces) return message;
+  const std::vector<Vertices>& surfaces = frame.surfaces;
+  const std::vector<MuscleDescription>& muscles = frame.muscles();
+  message.muscles.resize(surfaces.size());
+  for (std::size_t m = 0; m < surfaces.size(); ++m) {
     muscle_deformation::MuscleSurface& out = message.muscles[m];
     out.name = muscles[m].name;
     out.color = colourOf(muscles[m], -1);
@@ -210,7 +212,7 @@ muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skin
     out.mesh.vertices.resize(static_cast<std::size_t>(vertices.cols()));
     for (Eigen::Index v = 0; v < vertices.cols(); ++v)
       out.mesh.vertices[static_cast<std::size_t>(v)] = pointOf(vertices.col(v));
-    const Triangles& triangles = skins[m].triangles();
+    const Triangles& triangles = frame.surfaceTriangles(m);
     out.mesh.triangles.resize(static_cast<std::size_t>(triangles.cols()));
     for (Eigen::Index t = 0; t < triangles.cols(); ++t) {
       for (int c = 0; c < 3; ++c)
@@ -221,16 +223,17 @@ muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skin
   return message;
 }
 
-visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinning, const std::vector<Vertices>& surfaces,
-                                                  const std::vector<MuscleDescription>& muscles,
-                                                  const std_msgs::Header& header, float alpha) {
+visualization_msgs::MarkerArray surfacesToMarkers(const FrameResult& frame, const std_msgs::Header& header,
+                                                  float alpha) {
   visualization_msgs::MarkerArray array;
-  const std::vector<MuscleSkin>& skins = skinning.muscles();
-  for (std::size_t m = 0; m < skins.size(); ++m) {
+  if (!frame.has_surfaces) return array;
+  const std::vector<Vertices>& surfaces = frame.surfaces;
+  const std::vector<MuscleDescription>& muscles = frame.muscles();
+  for (std::size_t m = 0; m < surfaces.size(); ++m) {
     visualization_msgs::Marker marker =
         baseMarker(header, "surfaces", static_cast<int>(m), visualization_msgs::Marker::TRIANGLE_LIST);
     marker.color = colourOf(muscles[m], alpha);
-    const Triangles& triangles = skins[m].triangles();
+    const Triangles& triangles = frame.surfaceTriangles(m);
     marker.points.reserve(static_cast<std::size_t>(triangles.size()));
     for (Eigen::Index t = 0; t < triangles.cols(); ++t)
       for (int c = 0; c < 3; ++c) marker.points.push_back(pointOf(surfaces[m].col(triangles(c, t))));
@@ -239,10 +242,10 @@ visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinnin
   return array;
 }
 
-muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const std_msgs::Header& header) {
+muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, const std_msgs::Header& header) {
   muscle_deformation::DeformationStats stats;
   stats.header = header;
-  const SolveStats& solve = frame.solve.solve;
+  const SolveStats& solve = frame.stats.solver;
   stats.iterations = solve.iterations;
   stats.converged = solve.converged;
   constexpr double kAbsent = std::numeric_limits<double>::quiet_NaN();
@@ -251,8 +254,8 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   if (!stats.has_residual)
     stats.residual_absent_reason = frame.residual_absent_reason.empty() ? "not measured" : frame.residual_absent_reason;
   stats.time_limit_reached = solve.time_limit_reached;
-  stats.warm_started = frame.solve.warm_started;
-  stats.finite = frame.solve.finite;
+  stats.warm_started = frame.stats.warm_started;
+  stats.finite = frame.stats.finite;
   stats.divergence_recoveries = static_cast<std::uint32_t>(solve.divergence_recoveries);
   stats.diverged = solve.diverged;
   stats.time_step_s = solve.time_step_s;
@@ -266,8 +269,8 @@ muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, 
   stats.mean_strain = solve.mean_strain;
   stats.max_strain = solve.max_strain;
   stats.strain_p99 = solve.strain_p99;
-  const CollisionStats& collision = frame.solve.collision;
-  stats.has_collision_metrics = frame.solve.has_collision;
+  const CollisionStats& collision = frame.stats.collision;
+  stats.has_collision_metrics = frame.stats.has_collision;
   if (stats.has_collision_metrics) {
     stats.contacts = collision.contacts;
     stats.max_penetration_sphere_bone_m = collision.max_penetration_muscle_bone_m;

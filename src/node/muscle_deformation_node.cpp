@@ -95,7 +95,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   limits.wall_time_limit_ms = 1000.0 * settings_.max_solve_time_s;
   limits.cancel = &shutting_down_;
   limits.max_threads = &stream_thread_cap_;
-  settings_.pipeline.simulation.solver.limits = limits;
+  settings_.pipeline.simulation.stopping.limits = limits;
   shareStoppingRule(settings_.pipeline.simulation);
   std::string urdf;
   if (!node_.getParam("robot_description", urdf) || urdf.empty()) {
@@ -115,7 +115,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
     throw std::runtime_error(std::string("cannot build the muscle model (scene ") + settings_.scene_path +
                              "): " + e.what());
   }
-  bone_centres_ = boneRestCentroids(stream_->simulation().bones());
+  bone_centres_ = boneRestCentroids(stream_->bones());
   stream_policy_ = std::make_unique<PoseStream>(bone_centres_, settings_.stream.policy);
   const double startup_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -280,7 +280,7 @@ bool MuscleDeformationNode::lookupBones(const ros::Time& stamp, LinkPoses& out, 
   out.stamp = stamp;
   out.poses.clear();
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(settings_.stream.tf_wait_s);
-  const std::vector<Bone>& bones = stream_->simulation().bones();
+  const std::vector<Bone>& bones = stream_->bones();
   std::size_t next = 0;  // bones before `next` are already looked up
   while (true) {
     for (; next < bones.size(); ++next) {
@@ -331,7 +331,7 @@ bool MuscleDeformationNode::anyOutputWanted() const {
 
 void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const Pose pose = poseFromLinkPoses(scene_, link_poses.poses);
-  const BoneTransforms transforms = boneTransformsOf(stream_->simulation().bones(), pose);
+  const BoneTransforms transforms = boneTransformsOf(stream_->bones(), pose);
   const StreamDecision decision = stream_policy_->decide(link_poses.stamp.toSec(), transforms);
   if (decision.start == StreamStart::unchanged) {
     std::lock_guard<std::mutex> lock(counters_mutex_);
@@ -349,13 +349,13 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const bool want_surface_markers = surface_markers_pub_.getNumSubscribers() > 0;
   const bool want_stats = stats_pub_.getNumSubscribers() > 0;
   const StartMode start = decision.start == StreamStart::warm ? StartMode::warm : StartMode::cold;
-  const PipelineFrame& frame = stream_->solve(transforms, start, want_surfaces || want_surface_markers,
-                                              want_stats && settings_.stream.stats_metrics);
-  if (frame.solve.finite && !frame.solve.solve.diverged)
+  const FrameResult& frame = stream_->solve(transforms, start, want_surfaces || want_surface_markers,
+                                            want_stats && settings_.stream.stats_metrics);
+  if (frame.stats.finite && !frame.stats.solver.diverged)
     stream_policy_->accept(link_poses.stamp.toSec(), transforms);
   else
     stream_policy_->reset();  // never warm-start from a broken state
-  if (frame.solve.solve.time_limit_reached)
+  if (frame.stats.solver.time_limit_reached)
     ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: the solve at " << link_poses.stamp << " reached max_solve_time_s = "
                                                                       << settings_.max_solve_time_s << " s");
 
@@ -365,40 +365,33 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
     ++counters_.solved;
     ++window_solved_;
     if (reset) ++counters_.resets;
-    if (!frame.solve.finite) ++counters_.non_finite;
-    counters_.divergence_recoveries += static_cast<std::uint32_t>(frame.solve.solve.divergence_recoveries);
-    if (frame.solve.solve.diverged) ++counters_.diverged;
-    window_solve_ms_.push_back(frame.solve.solve.total_ms);
+    if (!frame.stats.finite) ++counters_.non_finite;
+    counters_.divergence_recoveries += static_cast<std::uint32_t>(frame.stats.solver.divergence_recoveries);
+    if (frame.stats.solver.diverged) ++counters_.diverged;
+    window_solve_ms_.push_back(frame.stats.solver.total_ms);
     counters = counters_;
   }
-  if (frame.solve.solve.diverged)
+  if (frame.stats.solver.diverged)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged at every time step down to "
-                                                                       << frame.solve.solve.time_step_s
+                                                                       << frame.stats.solver.time_step_s
                                                                        << " s; publishing its starting state, next frame starts cold");
-  else if (frame.solve.solve.divergence_recoveries > 0)
+  else if (frame.stats.solver.divergence_recoveries > 0)
     ROS_WARN_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp << " diverged and was re-run "
-                                                                      << frame.solve.solve.divergence_recoveries
+                                                                      << frame.stats.solver.divergence_recoveries
                                                                       << " time(s) with a halved time step, now "
-                                                                      << frame.solve.solve.time_step_s << " s");
-  if (!frame.solve.finite)
+                                                                      << frame.stats.solver.time_step_s << " s");
+  if (!frame.stats.finite)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: the solve at " << link_poses.stamp
                                                                        << " gave non-finite positions; next frame starts cold");
 
   std_msgs::Header header;
   header.stamp = link_poses.stamp;
   header.frame_id = settings_.fixed_frame;
-  const MassSpringSystem& system = stream_->simulation().system();
-  const Eigen::Matrix3Xd& positions = stream_->simulation().state().position;
-  const std::vector<MuscleDescription>& muscles = stream_->descriptions();
-  if (want_fibres)
-    fibres_pub_.publish(fibresToMarkers(system, positions, muscles, header, settings_.stream.colour_fibres_by_strain));
-  if (want_particles) particles_pub_.publish(particlesToCloud(system, positions, header));
-  if (frame.has_surfaces && want_surfaces)
-    surfaces_pub_.publish(surfacesToMessage(*stream_->skinning(), frame.surfaces, muscles, header));
-  if (frame.has_surfaces && want_surface_markers) {
-    surface_markers_pub_.publish(
-        surfacesToMarkers(*stream_->skinning(), frame.surfaces, muscles, header, settings_.stream.surface_alpha));
-  }
+  if (want_fibres) fibres_pub_.publish(fibresToMarkers(frame, header, settings_.stream.colour_fibres_by_strain));
+  if (want_particles) particles_pub_.publish(particlesToCloud(frame, header));
+  if (frame.has_surfaces && want_surfaces) surfaces_pub_.publish(surfacesToMessage(frame, header));
+  if (frame.has_surfaces && want_surface_markers)
+    surface_markers_pub_.publish(surfacesToMarkers(frame, header, settings_.stream.surface_alpha));
   if (want_stats) {
     muscle_deformation::DeformationStats stats = statsToMessage(frame, header);
     if (!stats.has_surface_metrics && stream_->metrics() && !settings_.stream.stats_metrics)
@@ -541,9 +534,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     settings.simulation.solver_kind = settings_.service.solver_kind;
     settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
     // Only block descent measures a force residual; another service solver runs its iteration count instead.
-    if (settings.simulation.solver.stopping_rule == StoppingRule::force_residual &&
+    if (settings.simulation.stopping.rule == StoppingRule::force_residual &&
         settings_.service.solver_kind != SolverKind::block_descent) {
-      settings.simulation.solver.stopping_rule = StoppingRule::iterations;
+      settings.simulation.stopping.rule = StoppingRule::iterations;
       shareStoppingRule(settings.simulation);
     }
     std::vector<MuscleDescription> descriptions;
@@ -562,8 +555,8 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // Every limit the request gives is honoured, whatever the node's stopping rule: a displacement tolerance makes the
   // solve stop when it is met (the only convergence criterion), a time budget bounds its wall time, and the node's
   // max_solve_time_s bounds every call.
-  const SolverSettings& node_solver = settings_.pipeline.simulation.solver;
-  StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_solver.stopping_rule;
+  const StoppingSettings& node_stopping = settings_.pipeline.simulation.stopping;
+  StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_stopping.rule;
   // A frame's time budget is the stream's (a request bounds its own time with time_budget_ms), and only block descent
   // measures a force residual: the service runs its iteration count instead.
   if (rule == StoppingRule::time_budget ||
@@ -571,9 +564,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     rule = StoppingRule::iterations;
   const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
   const double tolerance_m =
-      request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_solver.displacement_tolerance_m;
+      request.displacement_tolerance_m > 0 ? request.displacement_tolerance_m : node_stopping.displacement_tolerance_m;
   const double ceiling_ms = 1000.0 * settings_.max_solve_time_s;
-  const double budget_ms = request.time_budget_ms > 0 ? request.time_budget_ms : node_solver.time_budget_ms;
+  const double budget_ms = request.time_budget_ms > 0 ? request.time_budget_ms : node_stopping.time_budget_ms;
   SolveLimits limits;
   limits.wall_time_limit_ms = request.time_budget_ms > 0 ? std::min(request.time_budget_ms, ceiling_ms) : ceiling_ms;
   limits.cancel = &shutting_down_;
@@ -582,7 +575,7 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // Warm starts: only from this caller's own previous answer, on the same muscles, and only if no bone moved further
   // than service_warm_max_*; otherwise cold, and the message says why.
   const Pose pose = poseFromLinkPoses(scene_, link_poses);
-  const BoneTransforms transforms = boneTransformsOf(pipeline.simulation().bones(), pose);
+  const BoneTransforms transforms = boneTransformsOf(pipeline.bones(), pose);
   std::string cold_reason;
   if (request.warm_start) {
     if (!service_has_previous_) {
@@ -606,30 +599,25 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   // put back whatever way the solve ends.
   const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   const ThreadCapHold stream_cap(stream_thread_cap_, std::max(1, cores - 1));
-  const PipelineFrame& frame = pipeline.solve(transforms, request.warm_start && cold_reason.empty() ? StartMode::warm
-                                                                                               : StartMode::cold,
-                                              true, pipeline.metrics() != nullptr);
-  service_has_previous_ = frame.solve.finite && !frame.solve.solve.diverged && !frame.solve.solve.cancelled;
+  const FrameResult& frame = pipeline.solve(transforms, request.warm_start && cold_reason.empty() ? StartMode::warm
+                                                                                             : StartMode::cold,
+                                            true, pipeline.metrics() != nullptr);
+  service_has_previous_ = frame.stats.finite && !frame.stats.solver.diverged && !frame.stats.solver.cancelled;
   service_previous_caller_ = caller;
   service_previous_transforms_ = transforms;
 
   std_msgs::Header header;
   header.stamp = ros::Time::now();
   header.frame_id = frame_id;
-  const MassSpringSystem& system = pipeline.simulation().system();
-  const Eigen::Matrix3Xd& positions = pipeline.simulation().state().position;
-  response.fibres = fibresToMarkers(system, positions, pipeline.descriptions(), header,
-                                    settings_.stream.colour_fibres_by_strain);
-  response.particles = particlesToCloud(system, positions, header);
-  for (const Bone& bone : pipeline.simulation().bones()) response.bone_names.push_back(bone.name);
-  if (frame.has_surfaces) response.surfaces = surfacesToMessage(*pipeline.skinning(), frame.surfaces,
-                                                                pipeline.descriptions(), header);
-  response.surfaces.header = header;
+  response.fibres = fibresToMarkers(frame, header, settings_.stream.colour_fibres_by_strain);
+  response.particles = particlesToCloud(frame, header);
+  for (const Bone& bone : frame.bones()) response.bone_names.push_back(bone.name);
+  response.surfaces = surfacesToMessage(frame, header);
   response.stats = statsToMessage(frame, header);
-  const SolveStats& solve = frame.solve.solve;
-  response.success = frame.solve.finite && !solve.diverged && !solve.cancelled;
+  const SolveStats& solve = frame.stats.solver;
+  response.success = frame.stats.finite && !solve.diverged && !solve.cancelled;
   std::ostringstream message;
-  if (!frame.solve.finite) {
+  if (!frame.stats.finite) {
     message << "the solve gave non-finite particle positions";
   } else if (solve.diverged) {
     message << "the solve diverged at every time step down to " << solve.time_step_s
@@ -637,9 +625,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   } else if (solve.cancelled) {
     message << "the node is shutting down; the solve was stopped after " << solve.iterations << " iterations";
   } else {
-    message << "solved " << system.muscleCount() << " muscles, " << system.particleCount() << " particles in "
+    message << "solved " << frame.particles().muscleCount() << " muscles, " << frame.particles().particleCount()
+            << " particles in "
             << solve.iterations << " iterations, " << solve.total_ms << " ms ("
-            << (frame.solve.warm_started ? "warm start from this client's previous call" : "cold start");
+            << (frame.stats.warm_started ? "warm start from this client's previous call" : "cold start");
     if (!cold_reason.empty()) message << "; warm start refused: " << cold_reason;
     message << ")";
     if (solve.converged && solve.no_descent_left)

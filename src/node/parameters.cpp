@@ -25,33 +25,15 @@ class ParameterReader {
     if (raw.getType() != XmlRpc::XmlRpcValue::TypeString) fail(name, "has the wrong type");
     value = static_cast<std::string>(raw);
   }
-  // Booleans, integers and numbers are checked like the core's settings (checkSetting), so every parameter words
-  // its problems alike: e.g. roscpp's getParam(int) would round 30.5 silently, here it is refused.
-  void readBool(const std::string& name, bool& value) const {
-    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::boolean, 0, 0))) value = std::get<bool>(*read);
-  }
-  void readDouble(const std::string& name, double& value, double min, double max) const {
-    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::number, min, max)))
-      value = std::holds_alternative<int>(*read) ? std::get<int>(*read) : std::get<double>(*read);
-  }
-  void readInt(const std::string& name, int& value, int min, int max) const {
-    if (const auto read = readChecked(specOf(name, SettingSpec::Kind::integer, min, max)))
-      value = std::holds_alternative<int>(*read) ? std::get<int>(*read) : static_cast<int>(std::get<double>(*read));
-  }
-  // One setting of the core's table into `settings`.
-  void readSetting(const SettingSpec& spec, CoreSettings& settings) const {
-    if (const auto read = readChecked(spec)) spec.set(settings, *read);
-  }
-  template <typename Enum, typename Parse>
-  void readEnum(const std::string& name, Enum& value, Parse parse) const {
+  // One setting of a table (the core's or the node's) into `settings`; every parameter words its problems alike
+  // (checkSetting): e.g. roscpp's getParam(int) would round 30.5 silently, here it is refused.
+  template <typename Settings>
+  void readSetting(const SettingEntry<Settings>& entry, Settings& settings) const {
     XmlRpc::XmlRpcValue raw;
-    if (!source_.get(name, raw)) return;
-    if (raw.getType() != XmlRpc::XmlRpcValue::TypeString) fail(name, "must be a string");
-    try {
-      value = parse(static_cast<std::string>(raw));
-    } catch (const std::invalid_argument& e) {
-      fail(name, e.what());
-    }
+    if (!source_.get(entry.name, raw)) return;  // keep the default
+    const SettingValue value = valueOf(entry.kind, raw);
+    if (const std::string problem = checkSetting(entry, value); !problem.empty()) fail(entry.name, problem);
+    entry.set(settings, value);
   }
   // A single name or tag, or a list of them; an empty string means none.
   void readNames(const std::string& name, std::vector<std::string>& value) const {
@@ -76,24 +58,7 @@ class ParameterReader {
   }
 
  private:
-  // The parameter's value, or nothing when it is not set; refuses (fail) a value checkSetting does not accept.
-  std::optional<SettingValue> readChecked(const SettingSpec& spec) const {
-    XmlRpc::XmlRpcValue raw;
-    if (!source_.get(spec.name, raw)) return std::nullopt;  // keep the default
-    const SettingValue value = valueOf(spec.kind, raw);
-    if (const std::string problem = checkSetting(spec, value); !problem.empty()) fail(spec.name, problem);
-    return value;
-  }
-  // A node-only parameter described like a setting of the core's table, for checkSetting.
-  static SettingSpec specOf(const std::string& name, SettingSpec::Kind kind, double min, double max) {
-    SettingSpec spec;
-    spec.name = name;
-    spec.kind = kind;
-    spec.min = min;
-    spec.max = max;
-    return spec;
-  }
-  static SettingValue valueOf(SettingSpec::Kind kind, XmlRpc::XmlRpcValue& raw) {
+  static SettingValue valueOf(SettingKind kind, XmlRpc::XmlRpcValue& raw) {
     switch (raw.getType()) {
       case XmlRpc::XmlRpcValue::TypeBoolean:
         return static_cast<bool>(raw);
@@ -104,14 +69,69 @@ class ParameterReader {
       case XmlRpc::XmlRpcValue::TypeString:
         return static_cast<std::string>(raw);
       default:  // a list or map: a value of a type the kind never accepts, so checkSetting names the type expected
-        return kind == SettingSpec::Kind::boolean ? SettingValue(0) : SettingValue(false);
+        return kind == SettingKind::boolean ? SettingValue(0) : SettingValue(false);
     }
   }
 
   const ParameterSource& source_;
 };
 
+std::vector<NodeSettingSpec> buildNodeTable() {
+  namespace entries = setting_entries;
+  const auto service = [](NodeSettings& s) -> ServiceSettings& { return s.service; };
+  const auto stream = [](NodeSettings& s) -> StreamSettings& { return s.stream; };
+  return {
+      entries::text<NodeSettings>("fixed_frame", "tf frame the bones are looked up in and every output is expressed in",
+                                  [](NodeSettings& s) -> std::string& { return s.fixed_frame; }),
+      // ~deform_pose service
+      entries::choice<NodeSettings, SolverKind>(
+          "service_solver", {"verlet", "local_global", "block_descent"},
+          {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent},
+          "the service's solver (the streaming one is `solver`)",
+          [service](NodeSettings& s) -> SolverKind& { return service(s).solver_kind; }),
+      entries::integer<NodeSettings>("service_lbfgs_history", "count", 0, 1000,
+                                     "local_global: the service's quasi-Newton curvature pairs (0 = plain iterations)",
+                                     [service](NodeSettings& s) -> int& { return service(s).lbfgs_history; }),
+      entries::integer<NodeSettings>("service_max_iterations", "count", 1, 1000000,
+                                     "iterations per call (a request's max_iterations overrides it)",
+                                     [service](NodeSettings& s) -> int& { return service(s).max_iterations; }),
+      entries::integer<NodeSettings>("service_max_queued", "count", 0, 100,
+                                     "calls that may wait while one solves; further calls are refused at once",
+                                     [service](NodeSettings& s) -> int& { return service(s).max_queued; }),
+      entries::number<NodeSettings>(
+          "service_warm_max_translation_m", "m", 0.0, 1e6,
+          "a warm start continues the client's previous answer only if no bone moved further since",
+          [service](NodeSettings& s) -> double& { return service(s).warm_max_translation_m; }),
+      entries::number<NodeSettings>(
+          "service_warm_max_rotation_rad", "rad", 0.0, 7.0,
+          "a warm start continues the client's previous answer only if no bone turned more since",
+          [service](NodeSettings& s) -> double& { return service(s).warm_max_rotation_rad; }),
+      entries::number<NodeSettings>("max_solve_time_s", "s", 1e-3, 3600.0,
+                                    "wall-time ceiling of any solve, stream or service call",
+                                    [](NodeSettings& s) -> double& { return s.max_solve_time_s; }),
+      // Streaming and publishing
+      entries::number<NodeSettings>("tf_wait_s", "s", 0.0, 60.0,
+                                    "wall time to wait for a pose's transforms before counting a tf failure",
+                                    [stream](NodeSettings& s) -> double& { return stream(s).tf_wait_s; }),
+      entries::boolean<NodeSettings>("stats_metrics", "measure surface fidelity for ~stats while it has subscribers",
+                                     [stream](NodeSettings& s) -> bool& { return stream(s).stats_metrics; }),
+      entries::boolean<NodeSettings>("colour_fibres_by_strain",
+                                     "~fibres: colour segments by their strain instead of by muscle",
+                                     [stream](NodeSettings& s) -> bool& { return stream(s).colour_fibres_by_strain; }),
+      entries::number<NodeSettings>("surface_alpha", "", 0.0, 1.0, "opacity of ~surface_markers",
+                                    [stream](NodeSettings& s) -> float& { return stream(s).surface_alpha; }),
+      entries::number<NodeSettings>("expected_rate_hz", "Hz", 0.0, 1e6,
+                                    "diagnostics: pose rate the solver should keep up with (0 = no expectation)",
+                                    [stream](NodeSettings& s) -> double& { return stream(s).expected_rate_hz; }),
+  };
+}
+
 }  // namespace
+
+const std::vector<NodeSettingSpec>& nodeSettingSpecs() {
+  static const std::vector<NodeSettingSpec> table = buildNodeTable();
+  return table;
+}
 
 bool NodeHandleParameters::get(const std::string& name, XmlRpc::XmlRpcValue& value) const {
   return node_.hasParam(name) && node_.getParam(name, value);
@@ -140,23 +160,24 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
 
   p.readString("scene", settings.scene_path);
   p.readNames("muscles", settings.muscles);
-  p.readString("fixed_frame", settings.fixed_frame);
+  // The node's own settings (service, publishing, tf) from their table.
+  for (const NodeSettingSpec& spec : nodeSettingSpecs()) p.readSetting(spec, settings);
   if (settings.fixed_frame.empty()) p.fail("fixed_frame", "must not be empty");
+  for (const char* replaced : {"reset_translation_m", "reset_rotation_rad"}) {
+    if (p.has(replaced)) {
+      p.fail(replaced, "no longer exists: the stream starts cold only at a discontinuity (time going back, or a bone "
+                       "faster than max_bone_speed_m_per_s / max_bone_angular_speed_rad_per_s); the service's warm "
+                       "starts have service_warm_max_translation_m / service_warm_max_rotation_rad");
+    }
+  }
 
   for (const SettingSpec& spec : coreSettingSpecs()) p.readSetting(spec, core);
   settings.pipeline = core.pipeline;
   settings.stream.policy = core.stream;
   SimulationSettings& simulation = settings.pipeline.simulation;
-  ServiceSettings& service = settings.service;
-  p.readEnum("service_solver", service.solver_kind, solverKindFromString);
-  p.readInt("service_lbfgs_history", service.lbfgs_history, 0, 1000);
-  p.readInt("service_max_iterations", service.max_iterations, 1, 1000000);
-  p.readInt("service_max_queued", service.max_queued, 0, 100);
-  p.readDouble("service_warm_max_translation_m", service.warm_max_translation_m, 0.0, 1e6);
-  p.readDouble("service_warm_max_rotation_rad", service.warm_max_rotation_rad, 0.0, 7.0);
-  p.readDouble("max_solve_time_s", settings.max_solve_time_s, 1e-3, 3600.0);
+  const ServiceSettings& service = settings.service;
   shareStoppingRule(simulation);
-  if (simulation.solver.stopping_rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
+  if (simulation.stopping.rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
     p.fail("stopping_rule", "force_residual is measured by the block_descent solver only (solver is " +
                                 toString(simulation.solver_kind) + ")");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
@@ -170,22 +191,6 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   if (service.solver_kind == SolverKind::local_global)
     if (const std::string problem = validate(service_local_global); !problem.empty())
       p.fail("service_lbfgs_history", problem + " (chebyshev_rho and volume_weight apply to the service too)");
-
-  StreamSettings& stream = settings.stream;
-  for (const char* replaced : {"reset_translation_m", "reset_rotation_rad"}) {
-    if (p.has(replaced)) {
-      p.fail(replaced, "no longer exists: the stream starts cold only at a discontinuity (time going back, or a bone "
-                       "faster than max_bone_speed_m_per_s / max_bone_angular_speed_rad_per_s); the service's warm "
-                       "starts have service_warm_max_translation_m / service_warm_max_rotation_rad");
-    }
-  }
-  p.readDouble("tf_wait_s", stream.tf_wait_s, 0.0, 60.0);
-  p.readBool("colour_fibres_by_strain", stream.colour_fibres_by_strain);
-  double alpha = stream.surface_alpha;
-  p.readDouble("surface_alpha", alpha, 0.0, 1.0);
-  stream.surface_alpha = static_cast<float>(alpha);
-  p.readBool("stats_metrics", stream.stats_metrics);
-  p.readDouble("expected_rate_hz", stream.expected_rate_hz, 0.0, 1e6);
   return settings;
 }
 

@@ -79,13 +79,13 @@ TEST(Conversions, JointStatesNameTheirProblem) {
 }
 
 TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) {
-  md::PipelineFrame frame;
-  frame.solve.solve.iterations = 30;
-  frame.solve.solve.stopping_rule_met = true;  // the iterations rule ran its count
-  frame.solve.solve.converged = false;
-  frame.solve.solve.max_strain = 4.5e4;
-  frame.solve.solve.strain_p99 = 0.12;
-  frame.solve.solve.time_limit_reached = true;
+  md::FrameResult frame;
+  frame.stats.solver.iterations = 30;
+  frame.stats.solver.stopping_rule_met = true;  // the iterations rule ran its count
+  frame.stats.solver.converged = false;
+  frame.stats.solver.max_strain = 4.5e4;
+  frame.stats.solver.strain_p99 = 0.12;
+  frame.stats.solver.time_limit_reached = true;
   std_msgs::Header header;
   header.frame_id = "pelvis";
   const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, header);
@@ -97,8 +97,8 @@ TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) 
   EXPECT_FALSE(stats.has_surface_metrics);
   EXPECT_EQ(stats.header.frame_id, "pelvis");
   EXPECT_FALSE(stats.has_residual);  // this solver measured none (SolveStats::residual < 0): absent, not 0
-  frame.solve.solve.converged = true;
-  frame.solve.solve.residual = 2.5e-3;
+  frame.stats.solver.converged = true;
+  frame.stats.solver.residual = 2.5e-3;
   const muscle_deformation::DeformationStats measured = node::statsToMessage(frame, header);
   EXPECT_TRUE(measured.converged);
   EXPECT_TRUE(measured.has_residual);
@@ -107,7 +107,7 @@ TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) 
 }
 
 TEST(Conversions, FiguresThatWereNotMeasuredAreNaNWithTheirFlagAndReasonNeverZero) {
-  md::PipelineFrame frame;  // solver without a residual, collisions off, no surface metrics
+  md::FrameResult frame;  // solver without a residual, collisions off, no surface metrics
   frame.residual_absent_reason = "the verlet solver does not measure it (only block_descent does)";
   frame.collision_absent_reason = "collisions are off";
   frame.metrics_absent_reason = "bone 'pelvis': surface is not closed (3 boundary edges)";
@@ -129,17 +129,17 @@ TEST(Conversions, FiguresThatWereNotMeasuredAreNaNWithTheirFlagAndReasonNeverZer
   EXPECT_EQ(stats.surface_metrics_absent_reason, frame.metrics_absent_reason);
 
   // A frame without reasons still says the figures were not measured.
-  const muscle_deformation::DeformationStats bare = node::statsToMessage(md::PipelineFrame(), std_msgs::Header());
+  const muscle_deformation::DeformationStats bare = node::statsToMessage(md::FrameResult(), std_msgs::Header());
   EXPECT_EQ(bare.residual_absent_reason, "not measured");
   EXPECT_EQ(bare.surface_metrics_absent_reason, "not measured");
 }
 
 TEST(Conversions, MeasuredFiguresAreCopiedWithTheirFlagsAndNoReason) {
-  md::PipelineFrame frame;
-  frame.solve.has_collision = true;
-  frame.solve.collision.contacts = 0;  // measured: no contact is a result, not a missing figure
-  frame.solve.collision.max_penetration_muscle_bone_m = 0.0;
-  frame.solve.collision.max_penetration_muscle_muscle_m = 4e-4;
+  md::FrameResult frame;
+  frame.stats.has_collision = true;
+  frame.stats.collision.contacts = 0;  // measured: no contact is a result, not a missing figure
+  frame.stats.collision.max_penetration_muscle_bone_m = 0.0;
+  frame.stats.collision.max_penetration_muscle_muscle_m = 4e-4;
   frame.has_metrics = true;
   frame.metrics.volume_error_mean_pct = 0.0;
   frame.metrics.volume_error_max_pct = 1.5;
@@ -166,7 +166,7 @@ TEST(Conversions, MeasuredFiguresAreCopiedWithTheirFlagsAndNoReason) {
 }
 
 TEST(Conversions, TheDeepestSurfaceVertexInsideABoneIsNamedWithItsMuscleAndBone) {
-  md::PipelineFrame frame;
+  md::FrameResult frame;
   frame.has_metrics = true;
   md::MuscleMetrics shallow, deep, clear;
   shallow.name = "piriformis";
@@ -197,7 +197,10 @@ TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
   system.fixed_bone[0] = 2;
   std_msgs::Header header;
   header.frame_id = "pelvis";
-  const sensor_msgs::PointCloud2 cloud = node::particlesToCloud(system, positions, header);
+  const std::vector<md::MuscleDescription> muscles(1);
+  md::FrameResult frame;
+  frame.view(system, positions, muscles, {}, nullptr);
+  const sensor_msgs::PointCloud2 cloud = node::particlesToCloud(frame, header);
   ASSERT_EQ(cloud.width * cloud.height, 3u);
   EXPECT_EQ(cloud.header.frame_id, "pelvis");
   sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
@@ -227,4 +230,46 @@ TEST(Conversions, TheStreamsAbsentFiguresIncludeTheSurfaceMetricsWhenStatsMetric
   EXPECT_EQ(without[1].reason, "stats_metrics is false");
   EXPECT_EQ(without[1].remedy, "set stats_metrics: true");
   EXPECT_NE(without[1].describe().find("volume_error_*"), std::string::npos) << without[1].describe();
+}
+
+TEST(Conversions, APipelinesFrameCarriesEverythingItsMessagesNeed) {
+  md::SyntheticScene scene = md::makeSyntheticThigh(2, 3);
+  md::PipelineSettings settings;
+  settings.simulation.model.particles_per_fibre = 6;
+  settings.simulation.model.nearest_neighbours = 6;
+  settings.simulation.verlet.max_iterations = 5;
+  std::vector<md::MuscleDescription> descriptions(2);
+  for (std::size_t m = 0; m < 2; ++m) descriptions[m].name = scene.muscles[m].name;
+  md::DeformationPipeline pipeline(descriptions, scene.muscles, scene.bones, settings);
+  const md::FrameResult& frame = pipeline.solve(md::syntheticThighPose(0.3, 0.2), md::StartMode::cold, true, false);
+  ASSERT_TRUE(frame.has_surfaces);
+  std_msgs::Header header;
+  header.frame_id = "pelvis";
+
+  const sensor_msgs::PointCloud2 cloud = node::particlesToCloud(frame, header);
+  EXPECT_EQ(cloud.width * cloud.height, static_cast<std::uint32_t>(frame.positions().cols()));
+  sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x");
+  for (Eigen::Index i = 0; i < frame.positions().cols(); ++i, ++x)
+    ASSERT_FLOAT_EQ(*x, static_cast<float>(frame.positions()(0, i))) << "particle " << i;
+
+  const visualization_msgs::MarkerArray fibres = node::fibresToMarkers(frame, header, false);
+  ASSERT_EQ(fibres.markers.size(), 2u);
+  EXPECT_FALSE(fibres.markers[0].points.empty());
+
+  const muscle_deformation::MuscleSurfaces surfaces = node::surfacesToMessage(frame, header);
+  ASSERT_EQ(surfaces.muscles.size(), 2u);
+  for (std::size_t m = 0; m < 2; ++m) {
+    EXPECT_EQ(surfaces.muscles[m].name, scene.muscles[m].name);
+    EXPECT_EQ(surfaces.muscles[m].mesh.vertices.size(), static_cast<std::size_t>(frame.surfaces[m].cols()));
+    EXPECT_EQ(surfaces.muscles[m].mesh.triangles.size(), static_cast<std::size_t>(frame.surfaceTriangles(m).cols()));
+  }
+  const visualization_msgs::MarkerArray markers = node::surfacesToMarkers(frame, header, 0.5f);
+  ASSERT_EQ(markers.markers.size(), 2u);
+  EXPECT_EQ(markers.markers[1].points.size(), 3 * static_cast<std::size_t>(frame.surfaceTriangles(1).cols()));
+}
+
+TEST(Conversions, AFrameWithoutSurfacesGivesNone) {
+  md::FrameResult frame;  // has_surfaces false
+  EXPECT_TRUE(node::surfacesToMessage(frame, std_msgs::Header()).muscles.empty());
+  EXPECT_TRUE(node::surfacesToMarkers(frame, std_msgs::Header(), 1.0f).markers.empty());
 }

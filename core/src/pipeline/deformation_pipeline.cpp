@@ -42,16 +42,17 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
     metrics_problem_ = settings_.measure_fidelity ? "needs the surface skinning (" + skinning_problem_ + ")"
                                                   : "turned off (surface_metrics is false)";
   }
+  frame_.view(sim.system(), sim.state().position, descriptions_, sim.bones(), skinning_.get());
 }
 
-const PipelineFrame& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
-                                                bool want_metrics) {
+const FrameResult& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
+                                              bool want_metrics) {
   return solve(boneTransformsOf(simulation_->bones(), pose), start, want_surfaces, want_metrics);
 }
 
-const PipelineFrame& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces,
-                                                bool want_metrics) {
-  frame_.solve = simulation_->solve(transforms, start);
+const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces,
+                                              bool want_metrics) {
+  frame_.stats = simulation_->solve(transforms, start);
   frame_.bone_transforms = transforms;
   frame_.has_surfaces = false;
   frame_.has_metrics = false;
@@ -60,17 +61,17 @@ const PipelineFrame& DeformationPipeline::solve(const BoneTransforms& transforms
   frame_.residual_absent_reason.clear();
   frame_.collision_absent_reason.clear();
   frame_.metrics_absent_reason.clear();
-  if (frame_.solve.solve.residual < 0)
+  if (frame_.stats.solver.residual < 0)
     frame_.residual_absent_reason = simulation_->settings().solver_kind == SolverKind::block_descent
                                         ? "not measured in this solve"
                                         : residualAbsence().reason;
-  if (!frame_.solve.has_collision) frame_.collision_absent_reason = collisionAbsence().reason;
+  if (!frame_.stats.has_collision) frame_.collision_absent_reason = collisionAbsence().reason;
   const Eigen::Matrix3Xd& positions = simulation_->state().position;
   if (!metrics_)
     frame_.metrics_absent_reason = metricsAbsence().reason;
   else if (!want_metrics)
     frame_.metrics_absent_reason = "not asked for in this solve";
-  if (!frame_.solve.finite) {
+  if (!frame_.stats.finite) {
     if (frame_.metrics_absent_reason.empty())
       frame_.metrics_absent_reason = "the solve gave non-finite particle positions";
     return frame_;

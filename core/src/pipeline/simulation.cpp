@@ -5,6 +5,19 @@
 
 namespace muscle_deformation {
 
+void shareStoppingRule(SimulationSettings& simulation) {
+  const StoppingSettings& shared = simulation.stopping;
+  VerletSettings& verlet = simulation.verlet;
+  LocalGlobalSettings& local_global = simulation.local_global;
+  BlockDescentSettings& block_descent = simulation.block_descent;
+  verlet.stopping_rule = local_global.stopping_rule = block_descent.stopping_rule = shared.rule;
+  verlet.max_iterations = local_global.max_iterations = block_descent.max_iterations = shared.max_iterations;
+  verlet.displacement_tolerance_m = local_global.displacement_tolerance_m = block_descent.displacement_tolerance_m =
+      shared.displacement_tolerance_m;
+  verlet.time_budget_ms = local_global.time_budget_ms = block_descent.time_budget_ms = shared.time_budget_ms;
+  verlet.limits = local_global.limits = block_descent.limits = shared.limits;
+}
+
 MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
                                    const BoneFields& bone_fields)
     : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
@@ -32,7 +45,7 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   // local/global contact weights, the adaptive step's boundary particles). The local/global solver factorises its
   // matrix here, once: it depends on the model and settings, not the pose.
   solver_ = makeSolver(
-      SolverChoice{settings_.solver_kind, settings_.solver, settings_.local_global, settings_.block_descent}, system_);
+      SolverChoice{settings_.solver_kind, settings_.verlet, settings_.local_global, settings_.block_descent}, system_);
   if (collision_ && solver_->solvesContacts())
     solver_->setContactQuery(
         [this](const ParticleState& state, double margin_m, ContactSet& contacts) {
@@ -59,16 +72,24 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
 void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
                                    double time_budget_ms, const SolveLimits& limits) {
   solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
-  for (auto* settings : {&settings_.solver.stopping_rule, &settings_.local_global.stopping_rule,
-                         &settings_.block_descent.stopping_rule})
-    *settings = rule;
-  settings_.solver.max_iterations = settings_.local_global.max_iterations = settings_.block_descent.max_iterations =
-      max_iterations;
-  settings_.solver.displacement_tolerance_m = settings_.local_global.displacement_tolerance_m =
-      settings_.block_descent.displacement_tolerance_m = displacement_tolerance_m;
-  settings_.solver.time_budget_ms = settings_.local_global.time_budget_ms = settings_.block_descent.time_budget_ms =
-      time_budget_ms;
-  settings_.solver.limits = settings_.local_global.limits = settings_.block_descent.limits = limits;
+  settings_.stopping = StoppingSettings{rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits};
+  shareStoppingRule(settings_);
+}
+
+StoppingSettings MuscleSimulation::runningStopping() const {
+  const auto of = [](const auto& solver) {
+    return StoppingSettings{solver.stopping_rule, solver.max_iterations, solver.displacement_tolerance_m,
+                            solver.time_budget_ms, solver.limits};
+  };
+  switch (settings_.solver_kind) {
+    case SolverKind::verlet:
+      return of(settings_.verlet);
+    case SolverKind::local_global:
+      return of(settings_.local_global);
+    case SolverKind::block_descent:
+      return of(settings_.block_descent);
+  }
+  return of(settings_.verlet);
 }
 
 FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
@@ -95,27 +116,27 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   // muscles then ends 0.08 mm deep at most in 118 ms (real-time bench), and a frame that long still fits between the
   // poses of a stream played slower than real time.
   constexpr int kColdStartIterations = 10;
-  const SolverSettings& stop = settings_.solver;
-  const bool cold_under_budget = !stats.warm_started && stop.stopping_rule == StoppingRule::time_budget;
+  const StoppingSettings stop = runningStopping();
+  const bool cold_under_budget = !stats.warm_started && stop.rule == StoppingRule::time_budget;
   if (cold_under_budget)
     solver_->setStopping(StoppingRule::iterations, std::min(stop.max_iterations, kColdStartIterations),
                          stop.displacement_tolerance_m, stop.time_budget_ms, stop.limits);
   if (collision_ && solver_->solvesContacts()) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
-    stats.solve = solver_->solve(state_);
+    stats.solver = solver_->solve(state_);
     stats.collision = collision_->measure(state_);
   } else if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
     const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };
-    stats.solve = solver_->solve(state_, resolve);
+    stats.solver = solver_->solve(state_, resolve);
     stats.collision = collision_->measure(state_);
   } else {
-    stats.solve = solver_->solve(state_);
+    stats.solver = solver_->solve(state_);
   }
   if (cold_under_budget)
-    solver_->setStopping(stop.stopping_rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
+    solver_->setStopping(stop.rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
                          stop.limits);
   // The solvers put a diverged state back as it was on entry, which is finite whenever the previous result was. Should
   // anything still leave a non-finite position, fall back to the rigid pre-transform of the rest shape: finite by
@@ -123,13 +144,13 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   stats.finite = state_.position.allFinite();
   if (!stats.finite) {
     rigidPretransform(system_, transforms, state_);
-    stats.solve.diverged = true;
+    stats.solver.diverged = true;
     stats.fell_back_to_pretransform = true;
     if (collision_) stats.collision = collision_->measure(state_);
     stats.finite = state_.position.allFinite();
   }
   previous_transforms_ = transforms;
-  has_previous_ = stats.finite && !stats.solve.diverged;  // never warm-start from a broken state
+  has_previous_ = stats.finite && !stats.solver.diverged;  // never warm-start from a broken state
   return stats;
 }
 

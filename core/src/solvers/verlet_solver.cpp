@@ -66,7 +66,7 @@ Eigen::VectorXd stiffnessScaledMass(const MassSpringSystem& system) {
   return mass;
 }
 
-VerletSolver::VerletSolver(const MassSpringSystem& system, SolverSettings settings)
+VerletSolver::VerletSolver(const MassSpringSystem& system, VerletSettings settings)
     : system_(system), settings_(settings) {
   if (settings_.max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
   if (settings_.stopping_rule == StoppingRule::force_residual)

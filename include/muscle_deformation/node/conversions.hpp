@@ -49,32 +49,27 @@ Eigen::VectorXf particleStrains(const MassSpringSystem& system, const Eigen::Mat
 // Per muscle one LINE_LIST marker (namespace "fibres", id = muscle index) joining consecutive particles of each
 // fibre. Colour: the muscle's scene colour, or, with `colour_by_strain`, each segment from blue (shortened by 20 %
 // or more) through white (rest length) to red (stretched by 20 % or more).
-visualization_msgs::MarkerArray fibresToMarkers(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
-                                                const std::vector<MuscleDescription>& muscles,
-                                                const std_msgs::Header& header, bool colour_by_strain);
+visualization_msgs::MarkerArray fibresToMarkers(const FrameResult& frame, const std_msgs::Header& header,
+                                                bool colour_by_strain);
 
 // PointCloud2 built with PCL, one point per particle: x y z (float32, m), radius (float32, m, collision sphere, 0 for
 // interior particles), strain (float32, see particleStrains), muscle (int32, muscle index), bone (int32: the bone a
 // fixed particle is attached to, -1 for free particles).
-sensor_msgs::PointCloud2 particlesToCloud(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions,
-                                          const std_msgs::Header& header);
+sensor_msgs::PointCloud2 particlesToCloud(const FrameResult& frame, const std_msgs::Header& header);
 
-// Deformed surfaces, per muscle its name, colour and shape_msgs/Mesh.
-muscle_deformation::MuscleSurfaces surfacesToMessage(const SurfaceSkinning& skinning,
-                                                     const std::vector<Vertices>& surfaces,
-                                                     const std::vector<MuscleDescription>& muscles,
-                                                     const std_msgs::Header& header);
+// Deformed surfaces (the frame's, when it has_surfaces; none otherwise), per muscle its name, colour and
+// shape_msgs/Mesh.
+muscle_deformation::MuscleSurfaces surfacesToMessage(const FrameResult& frame, const std_msgs::Header& header);
 
 // The same surfaces as TRIANGLE_LIST markers (namespace "surfaces", id = muscle index) for rviz.
-visualization_msgs::MarkerArray surfacesToMarkers(const SurfaceSkinning& skinning, const std::vector<Vertices>& surfaces,
-                                                  const std::vector<MuscleDescription>& muscles,
-                                                  const std_msgs::Header& header, float alpha);
+visualization_msgs::MarkerArray surfacesToMarkers(const FrameResult& frame, const std_msgs::Header& header,
+                                                  float alpha);
 
 // Per-frame statistics (the running counters are left at 0 for the caller to fill). `converged` is true only when a
 // convergence criterion was met (SolveStats::converged), never for running out of iterations or time. A figure the
 // frame does not have (residual, collision, surface metrics) is NaN (a count -1) with its has_* flag false and the
 // frame's reason, never 0.
-muscle_deformation::DeformationStats statsToMessage(const PipelineFrame& frame, const std_msgs::Header& header);
+muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, const std_msgs::Header& header);
 
 // The ~stats figures the node's stream never measures, as set up: the pipeline's (DeformationPipeline::absentMetrics)
 // and the surface metrics when ~stats_metrics is false; each with the reason and how to turn it on.

@@ -1,4 +1,6 @@
-// The node's private parameters (documented with units in config/muscle_deformation.yaml) read into plain settings.
+// The node's private parameters (documented with units in config/muscle_deformation.yaml) read into plain settings:
+// the core's settings through the core's table, the node's own ones (service, publishing, tf) through nodeSettingSpecs,
+// a table of the same entry type.
 #pragma once
 
 #include "muscle_deformation/core/pipeline/pose_stream.hpp"
@@ -46,6 +48,12 @@ struct NodeSettings {
   ServiceSettings service;
 };
 
+// The settings only the node has, declared once as the core's are (name, kind, unit, range or choices, one sentence,
+// field), in the order config/muscle_deformation.yaml documents them. Not in it: `scene` (a path whose default is
+// the package's bundled scene, set by the launch file) and `muscles` (a list of names or tags).
+using NodeSettingSpec = SettingEntry<NodeSettings>;
+const std::vector<NodeSettingSpec>& nodeSettingSpecs();
+
 // Where the node's parameters come from: the parameter server in the node, a plain map in tests (no roscore).
 class ParameterSource {
  public:
@@ -86,7 +94,7 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
 
 // shareStoppingRule (the one set of stopping parameters driving whichever solver runs) is the core's:
-// pipeline/settings_table.hpp.
+// pipeline/simulation.hpp.
 
 
 }  // namespace muscle_deformation::node

@@ -21,18 +21,52 @@ struct PipelineSettings {
   bool measure_fidelity = true;  // precompute the volume / surface-in-bone metrics
 };
 
-struct PipelineFrame {
-  FrameStats solve;
+// What one solved pose gives the layers above (the node's messages, the benchmarks): the particles, the fibres they
+// lie on, the skinned surfaces when computed, and the frame's figures. The big arrays stay where the pipeline keeps
+// them and the frame reads them in place, so nothing is copied per frame: the views show the pipeline's newest solve
+// and stay valid while it lives. A default-constructed frame has no views (a test of the figures alone).
+struct FrameResult {
+  FrameStats stats;                 // stats.solver (iterations, times, strain, divergence), stats.collision, ...
   BoneTransforms bone_transforms;   // indexed by Bone::id
   bool has_surfaces = false;
-  std::vector<Vertices> surfaces;   // per muscle, when has_surfaces
+  std::vector<Vertices> surfaces;   // per muscle, when has_surfaces; triangles in surfaceTriangles(muscle)
   double skinning_ms = 0;
   bool has_metrics = false;
   SceneMetrics metrics;             // when has_metrics
   double metrics_ms = 0;
-  // Why a figure of this frame is absent (empty when it is there): the force residual (solve.solve.residual < 0),
-  // the contacts and penetrations (solve.has_collision false), the surface metrics (has_metrics false).
+  // Why a figure of this frame is absent (empty when it is there): the force residual (stats.solver.residual < 0),
+  // the contacts and penetrations (stats.has_collision false), the surface metrics (has_metrics false).
   std::string residual_absent_reason, collision_absent_reason, metrics_absent_reason;
+
+  // Particle positions, m, one column per particle.
+  const Eigen::Matrix3Xd& positions() const { return *positions_; }
+  // What each particle is: its muscle (muscle_of, muscle_begin), fibre (fibre_of: a fibre is a run of consecutive
+  // particles), collision radius, the bone it is fixed to; the springs and rest positions.
+  const MassSpringSystem& particles() const { return *particles_; }
+  // Names and colours of the muscles, in the order of particles().muscle_of and `surfaces`.
+  const std::vector<MuscleDescription>& muscles() const { return *muscles_; }
+  const std::vector<Bone>& bones() const { return *bones_; }  // in the order of bone_transforms
+  // The triangles over surfaces[muscle] (its vertices); only when has_surfaces.
+  const Triangles& surfaceTriangles(std::size_t muscle) const { return skinning_->muscles()[muscle].triangles(); }
+
+  // Points the views at what they show: the pipeline does it once when built, a converter test with a model of its
+  // own. `skinning` may be null (no surfaces).
+  void view(const MassSpringSystem& particles, const Eigen::Matrix3Xd& positions,
+            const std::vector<MuscleDescription>& muscles, const std::vector<Bone>& bones,
+            const SurfaceSkinning* skinning) {
+    particles_ = &particles;
+    positions_ = &positions;
+    muscles_ = &muscles;
+    bones_ = &bones;
+    skinning_ = skinning;
+  }
+
+ private:
+  const MassSpringSystem* particles_ = nullptr;
+  const Eigen::Matrix3Xd* positions_ = nullptr;
+  const std::vector<MuscleDescription>* muscles_ = nullptr;
+  const std::vector<Bone>* bones_ = nullptr;
+  const SurfaceSkinning* skinning_ = nullptr;
 };
 
 // A figure the pipeline cannot give, with the reason and what would turn it on (setting names as in the settings
@@ -55,12 +89,16 @@ class DeformationPipeline {
   // `bone_fields`: see MuscleSimulation (shared by the node's stream and service pipelines).
   DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
                       std::vector<Bone> bones, const PipelineSettings& settings, const BoneFields& bone_fields = {});
+  // The frame result views the pipeline's own arrays: a copy or a move would leave it looking at the old ones.
+  DeformationPipeline(const DeformationPipeline&) = delete;
+  DeformationPipeline& operator=(const DeformationPipeline&) = delete;
 
   // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
-  const PipelineFrame& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
+  // The result is the pipeline's own (see FrameResult): the next solve overwrites it.
+  const FrameResult& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
   // The same from bone transforms (boneTransformsOf(simulation().bones(), pose)), computed once per frame by callers
   // that also need them (the stream policy, the service's warm-start check).
-  const PipelineFrame& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics);
+  const FrameResult& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics);
   void reset() { simulation_->reset(); }
   // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
@@ -69,9 +107,10 @@ class DeformationPipeline {
   }
 
   const MuscleSimulation& simulation() const { return *simulation_; }
+  const std::vector<Bone>& bones() const { return simulation_->bones(); }  // what a pose's bone transforms are of
   const std::vector<MuscleDescription>& descriptions() const { return descriptions_; }
   const PipelineSettings& settings() const { return settings_; }
-  const PipelineFrame& lastFrame() const { return frame_; }
+  const FrameResult& lastFrame() const { return frame_; }
   const SurfaceSkinning* skinning() const { return skinning_.get(); }
   const DeformationMetrics* metrics() const { return metrics_.get(); }
   const std::string& skinningProblem() const { return skinning_problem_; }
@@ -99,7 +138,7 @@ class DeformationPipeline {
   std::unique_ptr<DeformationMetrics> metrics_;
   std::string skinning_problem_, metrics_problem_;
   double skinning_setup_ms_ = 0, metrics_setup_ms_ = 0;
-  PipelineFrame frame_;
+  FrameResult frame_;
 };
 
 }  // namespace muscle_deformation

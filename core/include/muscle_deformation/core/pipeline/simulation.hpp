@@ -17,15 +17,31 @@
 
 namespace muscle_deformation {
 
+// How a frame's solve stops, whichever solver runs: the settings table's stopping_rule, max_iterations,
+// displacement_tolerance_m and time_budget_ms, and the node's limits. Each solver keeps its own copy (a solver can be
+// used alone, with its own default rule); shareStoppingRule copies these into all of
+// them, as the node and the benchmarks that speak for it do.
+struct StoppingSettings {
+  StoppingRule rule = StoppingRule::iterations;
+  int max_iterations = 100;                 // cap for every rule
+  double displacement_tolerance_m = 1e-6;   // for StoppingRule::displacement
+  double time_budget_ms = 16.0;             // for StoppingRule::time_budget
+  SolveLimits limits;                       // for every rule
+};
+
 struct SimulationSettings {
   ModelSettings model;
   SolverKind solver_kind = SolverKind::verlet;  // which solver MuscleSimulation runs
-  SolverSettings solver;                        // for SolverKind::verlet
+  StoppingSettings stopping;                    // shared by the solvers once shareStoppingRule copied it
+  VerletSettings verlet;                        // for SolverKind::verlet
   LocalGlobalSettings local_global;             // for SolverKind::local_global
   BlockDescentSettings block_descent;           // for SolverKind::block_descent
   CollisionSettings collision;
   bool collisions = true;  // false: the MSS alone (for comparisons)
 };
+
+// Copies `simulation.stopping` into the settings of every solver, so that it drives whichever one runs.
+void shareStoppingRule(SimulationSettings& simulation);
 
 enum class StartMode {
   cold,  // from the rest shape moved by the rigid pre-transform (the seeds: every pose independent)
@@ -33,7 +49,7 @@ enum class StartMode {
 };
 
 struct FrameStats {
-  SolveStats solve;          // iterations, per-phase times, spring deviation, strain
+  SolveStats solver;         // the solver's: iterations, per-phase times, spring deviation, strain, divergence
   CollisionStats collision;  // contacts and remaining penetration after the last iteration, when has_collision
   bool has_collision = false;  // collisions are on, so `collision` was measured (off: its figures mean nothing)
   bool warm_started = false;
@@ -76,6 +92,8 @@ class MuscleSimulation {
   const RestOverlapSummary& restOverlaps() const { return rest_overlaps_; }
 
  private:
+  StoppingSettings runningStopping() const;  // the stopping settings of the solver that runs
+
   std::vector<Muscle> muscles_;
   std::vector<Bone> bones_;
   SimulationSettings settings_;

@@ -13,7 +13,7 @@ namespace muscle_deformation {
 // The settings of every solver, so that switching the kind needs nothing else.
 struct SolverChoice {
   SolverKind kind = SolverKind::verlet;
-  SolverSettings verlet;
+  VerletSettings verlet;
   LocalGlobalSettings local_global;
   BlockDescentSettings block_descent;
 };

@@ -15,7 +15,7 @@
 namespace muscle_deformation {
 
 enum class TimeStepRule {
-  fixed,     // dt = SolverSettings::dt_s every iteration
+  fixed,     // dt = VerletSettings::dt_s every iteration
   adaptive,  // thesis eq. 5.1: largest dt keeping every boundary particle's step within its radius,
              // clamped to [dt_min_s, dt_s]
 };
@@ -25,7 +25,7 @@ enum class MassRule {
   stiffness_scaled,  // particles on unusually stiff (short) springs made heavier, see stiffnessScaledMass()
 };
 
-struct SolverSettings {
+struct VerletSettings {
   MassRule mass_rule = MassRule::stiffness_scaled;
   TimeStepRule dt_rule = TimeStepRule::fixed;
   double dt_s = 0.0;           // fixed step, and the upper clamp of the adaptive one; 0 = auto (0.9 x stability bound)
@@ -56,7 +56,7 @@ class VerletSolver final : public SoftBodySolver {
   SolverKind kind() const override { return SolverKind::verlet; }
   static constexpr int kMaxRecoveries = 8;  // halvings: a step up to 256 x too long is still brought back
 
-  VerletSolver(const MassSpringSystem& system, SolverSettings settings);
+  VerletSolver(const MassSpringSystem& system, VerletSettings settings);
 
   // Advances `state` until the stopping rule is met. Fixed particles keep the positions `state` holds on entry.
   // Allocates nothing per iteration. On divergence (DivergenceMonitor) the state is put back as it was on entry, the
@@ -71,7 +71,7 @@ class VerletSolver final : public SoftBodySolver {
   // One MSS update (forces, time step, integration) without collision, for benchmarks. Returns the dt used.
   double step(ParticleState& state);
 
-  const SolverSettings& settings() const { return settings_; }
+  const VerletSettings& settings() const { return settings_; }
   double damping() const { return damping_; }
   double timeStep() const { return dt_; }
   // Heap bytes the solver keeps (packed springs, forces, inverse masses, particle lists), excluding the state.
@@ -101,7 +101,7 @@ class VerletSolver final : public SoftBodySolver {
                std::chrono::steady_clock::time_point solve_start);
 
   const MassSpringSystem& system_;
-  SolverSettings settings_;
+  VerletSettings settings_;
   double damping_ = 0;
   double dt_ = 0, dt_min_ = 0;
   double previous_dt_ = 0;
