@@ -39,8 +39,9 @@ class BadParameters(unittest.TestCase):
     def test_unknown_solver_names_the_accepted_ones(self):
         code, output = self.run_node("_service_solver:=euler")
         self.assertNotEqual(code, 0)
-        self.assertIn("service_solver", output)
-        self.assertIn("expected verlet, local_global or block_descent", output)
+        # The service's solver is read through the settings table, as every other choice is.
+        self.assertIn("parameter /bad_parameters_node/service_solver 'euler' is not one of: verlet, local_global, "
+                      "block_descent", output)
 
     def test_conflicting_solver_options_are_refused(self):
         code, output = self.run_node("_solver:=local_global", "_lbfgs_history:=4", "_chebyshev_rho:=0.5")
