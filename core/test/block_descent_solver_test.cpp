@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 
@@ -280,6 +281,32 @@ TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {
   cap = 0;
   solver.solve(free_running);
   EXPECT_TRUE((capped.position.array() == free_running.position.array()).all());  // bit for bit
+}
+
+TEST(BlockDescent, WithThreadsZeroOneThreadAndEveryCoreAreBothMeasuredAgainAndMoveNoParticle) {
+  const MassSpringSystem system = fixedChain(40);
+  BlockDescentSettings settings = converging(1, 0);
+  settings.stopping_rule = StoppingRule::iterations;  // one sweep per solve: a frame at the node's budget
+  settings.threads = 0;
+  BlockDescentSolver measured(system, settings);
+  if (measured.threadCount() < 2) GTEST_SKIP() << "one core: nothing to choose";
+  settings.threads = 1;
+  BlockDescentSolver single(system, settings);
+  ParticleState a = stateAt(system.rest_position), b = a;
+  a.position(0, 40) = b.position(0, 40) = 60.0;
+  // Every core first, then one thread, then the faster with the slower again every kThreadProbeInterval sweeps.
+  EXPECT_EQ(measured.sweepThreads(), measured.threadCount());
+  int on_one = 0, on_every = 0;
+  const int solves = 2 * BlockDescentSolver::kThreadProbeInterval + 4;
+  for (int k = 0; k < solves; ++k) {
+    const int threads = measured.sweepThreads();
+    if (k == 1) EXPECT_EQ(threads, 1);
+    (threads == 1 ? on_one : on_every) += 1;
+    measured.solve(a);
+    single.solve(b);
+  }
+  EXPECT_GE(std::min(on_one, on_every), 3) << "the slower is measured again";
+  EXPECT_TRUE((a.position.array() == b.position.array()).all());  // bit for bit
 }
 
 TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {

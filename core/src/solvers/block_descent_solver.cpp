@@ -314,15 +314,34 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state) {
 }
 
 int BlockDescentSolver::sweepThreads() const {
-  if (settings_.limits.max_threads == nullptr) return thread_count_;
+  const int threads = settings_.threads == 0 && thread_count_ > 1 ? measuredThreadChoice() : thread_count_;
+  if (settings_.limits.max_threads == nullptr) return threads;
   const int cap = settings_.limits.max_threads->load(std::memory_order_relaxed);
-  return cap > 0 ? std::min(cap, thread_count_) : thread_count_;
+  return cap > 0 ? std::min(cap, threads) : threads;
+}
+
+int BlockDescentSolver::measuredThreadChoice() const {
+  const double one = sweep_ms_[0], every = sweep_ms_[1];
+  if (every <= 0) return thread_count_;  // every core first
+  if (one <= 0) return 1;
+  const int faster = one < every ? 1 : thread_count_;
+  const int slower = faster == 1 ? thread_count_ : 1;
+  return sweeps_since_probe_ >= kThreadProbeInterval ? slower : faster;
+}
+
+void BlockDescentSolver::recordSweepTime(int threads, double milliseconds) {
+  if (settings_.threads != 0 || thread_count_ == 1) return;
+  if (threads != 1 && threads != thread_count_) return;  // capped in between: neither estimate
+  const bool probe = threads != (sweep_ms_[0] > 0 && sweep_ms_[0] < sweep_ms_[1] ? 1 : thread_count_);
+  double& estimate = sweep_ms_[threads == 1 ? 0 : 1];
+  // A running mean that follows the load within a few sweeps and forgets a single interrupted one.
+  estimate = estimate > 0 ? 0.7 * estimate + 0.3 * milliseconds : milliseconds;
+  sweeps_since_probe_ = probe ? 0 : sweeps_since_probe_ + 1;
 }
 
 void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum,
-                               bool touching_only) {
+                               int threads, bool touching_only) {
   const int colours = colourCount();
-  const int threads = sweepThreads();
   // Partners of a muscle-muscle contact may share a colour (no spring joins them): they are read from a copy taken
   // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
   // as if the other stood still, and together would overshoot the overlap twice (and chatter); doubling the contact's
@@ -516,7 +535,10 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
       chebyshev_older_ = state.position;
     }
     double residual_squared_sum = 0, displacement_sum = 0;
-    sweep(state.position, residual_squared_sum, displacement_sum);
+    const int threads = sweepThreads();
+    const auto sweep_start = Clock::now();
+    sweep(state.position, residual_squared_sum, displacement_sum, threads);
+    recordSweepTime(threads, millisecondsSince(sweep_start));
     if (chebyshev) {
       // Wang 2015: x_{k+1} = omega (x_sweep - x_{k-1}) + x_{k-1}, omega growing towards 2 / (1 + sqrt(1 - rho^2)).
       if (iteration < settings_.chebyshev_delay) omega = 1.0;
@@ -567,7 +589,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     // was longer than the detection margin beyond the depth it started at.
     const auto pass_start = Clock::now();
     double ignored_residual = 0, ignored_displacement = 0;
-    sweep(state.position, ignored_residual, ignored_displacement, true);
+    sweep(state.position, ignored_residual, ignored_displacement, sweepThreads(), true);
     state.previous_position = state.position;
     stats.collision_ms += millisecondsSince(pass_start);
   }

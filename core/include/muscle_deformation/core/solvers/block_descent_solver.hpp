@@ -47,7 +47,10 @@ struct BlockDescentSettings {
   // iteration, in [0, 1); 0 = off. Starts after chebyshev_delay sweeps of a solve.
   double chebyshev_rho = 0.0;
   int chebyshev_delay = 4;
-  // Worker threads for the sweeps (0 = every core). Positions do not depend on it.
+  // Worker threads for the sweeps. Positions do not depend on it. 0 = every core while that is faster: the sweeps'
+  // wall times on one thread and on every core are measured as the solver runs (both are tried first, and the slower
+  // again every kThreadProbeInterval sweeps), and each sweep runs on the faster. Every core stops paying once another
+  // process holds one: a colour's threads then wait at its barrier for the descheduled one.
   int threads = 0;
 
   StoppingRule stopping_rule = StoppingRule::force_residual;
@@ -91,8 +94,11 @@ class BlockDescentSolver final : public SoftBodySolver {
   const BlockDescentSettings& settings() const { return settings_; }
   int colourCount() const { return static_cast<int>(colour_begin_.size()) - 1; }
   int threadCount() const { return thread_count_; }
-  // Threads of the next sweep: threadCount() within the cap of SolveLimits::max_threads.
+  // Threads of the next full sweep: threadCount(), or with threads = 0 one or every core as measured, within the cap of
+  // SolveLimits::max_threads.
   int sweepThreads() const;
+  // With threads = 0, the slower of one thread and every core is tried again after this many sweeps on the faster.
+  static constexpr int kThreadProbeInterval = 32;
   double materialConstant() const { return material_constant_n_; }
   double contactStiffness() const { return contact_stiffness_; }  // the floor; per particle it may be higher
   // Relative RMS residual of the last sweep of the last solve (forces when each particle was visited).
@@ -126,12 +132,19 @@ class BlockDescentSolver final : public SoftBodySolver {
   void gatherContacts(const ParticleState& state);
   // One sweep over every colour (or only the particles touching a contact); returns the summed squared residual force
   // and summed |step| of the free particles.
-  void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum,
+  void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum, int threads,
              bool touching_only = false);
+  // threads = 0: one thread or every core for the next full sweep, from the measured sweep times.
+  int measuredThreadChoice() const;
+  void recordSweepTime(int threads, double milliseconds);
 
   const MassSpringSystem& system_;
   BlockDescentSettings settings_;
   int thread_count_ = 1;
+  // threads = 0: running estimates of a full sweep's wall time on one thread [0] and on every core [1] (ms, 0 = not
+  // measured yet), and full sweeps since the slower one last ran.
+  double sweep_ms_[2] = {0, 0};
+  int sweeps_since_probe_ = 0;
   double material_constant_n_ = 1.0;
   double contact_stiffness_ = 0.0;
   double contact_margin_m_ = 0.0;
