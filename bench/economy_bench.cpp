@@ -11,6 +11,7 @@
 //                       each pose held, and the gait followed by a held pose as long as the cycle.
 // Writes out/bench/economy.json: one object per economy and variant.
 #include "bench_util.hpp"
+#include "gait_stream.hpp"
 #include "node_defaults.hpp"
 #include "progress.hpp"
 
@@ -41,30 +42,25 @@ struct FrameRecord {
   FrameStats stats;
 };
 
-// Plays poses through a simulation the way the node's stream starts them (PoseStream): warm from the previous frame
-// unless time went back or a bone moved faster than the node's limits (then cold). The poses come at the gait's 60 Hz.
-// Unlike the node, an unchanged pose is solved too: the benchmark times solves.
+// Plays poses through a simulation, started as the node's stream starts them (bench::GaitStream), at the gait's 60 Hz.
 class GaitPlayer {
  public:
-  static constexpr double kGaitRateHz = 60.0;
   GaitPlayer(MuscleSimulation& simulation, const bench::NodeDefaults& defaults)
-      : simulation_(simulation), stream_(boneRestCentroids(simulation.bones()), defaults.stream) {}
+      : simulation_(simulation), stream_(simulation.bones(), defaults.stream) {}
 
   FrameRecord solve(const Pose& pose) {
     const BoneTransforms transforms = boneTransformsOf(simulation_.bones(), pose);
-    const double time_s = static_cast<double>(frames_++) / kGaitRateHz;
-    const StartMode start =
-        stream_.decide(time_s, transforms).start == StreamStart::cold ? StartMode::cold : StartMode::warm;
+    const StartMode start = stream_.start(frames_, transforms);
     FrameRecord record;
     record.cpu_ms = bench::cpuMillisecondsOf(
         [&] { record.wall_ms = bench::millisecondsOf([&] { record.stats = simulation_.solve(pose, start); }); });
-    stream_.accept(time_s, transforms);
+    stream_.solved(frames_++, transforms);
     return record;
   }
 
  private:
   MuscleSimulation& simulation_;
-  PoseStream stream_;
+  bench::GaitStream stream_;
   std::size_t frames_ = 0;
 };
 

@@ -20,6 +20,7 @@
 //   realtime_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
+#include "gait_stream.hpp"
 #include "node_defaults.hpp"
 
 #include "muscle_deformation/core/pipeline/simulation.hpp"
@@ -254,9 +255,14 @@ int main(int argc, char** argv) {
       MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, config));
       BlockDescentSolver yardstick = yardstickFor(simulation, defaults.block_descent);
       simulation.continueFrom(transforms[0], reference[0]);
+      bench::GaitStream stream(simulation.bones(), node.stream);
+      stream.solved(0, transforms[0]);
       std::vector<Measured> rows;
-      for (std::size_t f = 1; f < frame_count; ++f)
-        rows.push_back(measured(simulation, simulation.solve(transforms[f], StartMode::warm), reference[f], yardstick));
+      for (std::size_t f = 1; f < frame_count; ++f) {
+        const StartMode start = stream.start(f, transforms[f]);
+        rows.push_back(measured(simulation, simulation.solve(transforms[f], start), reference[f], yardstick));
+        stream.solved(f, transforms[f]);
+      }
       record(records, scene_name, "stream", config, summarise(rows), particles);
     }
 
