@@ -136,11 +136,14 @@ TEST(ServiceLoad, EveryLimitOfARequestIsHonouredAndTheNodeCeilingBoundsTheRest) 
   EXPECT_TRUE(contains(bounded.message, "max_solve_time_s")) << bounded.message;
   EXPECT_LT(seconds, max_solve_time_s + 3.0) << bounded.message;
 
-  // A displacement tolerance is honoured although the node's stopping rule is `iterations`.
+  // A displacement tolerance is honoured although the node's stopping rule is `iterations`. One muscle on its own
+  // settles to it well within the node's ceiling (the node's three, in contact, do not: see service_load.test).
   md::DeformPose::Request tolerant = poseRequest(0.4);
+  tolerant.muscles = {"adductor_longus"};
   tolerant.max_iterations = 1000000;
   tolerant.displacement_tolerance_m = 1e-5;
   const md::DeformPose::Response settled = call(tolerant);
+  std::printf("displacement tolerance 1e-5 m, one muscle: %s\n", settled.message.c_str());
   ASSERT_TRUE(settled.success) << settled.message;
   EXPECT_TRUE(settled.stats.converged) << settled.message;
   EXPECT_LT(settled.stats.iterations, 1000000);
