@@ -54,8 +54,15 @@ MuscleSkin::MuscleSkin(const MassSpringSystem& system, int muscle, const Triangl
     throw SkinningError(label + ": surface is not a closed 2-manifold (" + topology.describe() +
                         "); skinning and volume need a closed surface");
   particle_begin_ = system.muscle_begin[muscle];
-  particle_count_ = system.muscle_begin[muscle + 1] - particle_begin_;
-  if (particle_count_ < 4) throw SkinningError(label + ": fewer than 4 particles");
+  // The surface follows the muscle's fibre particles only: a tendon's bone anchors (after them in the muscle's range)
+  // sit on the bone, up to tens of centimetres from the belly, and a Delaunay tetrahedralisation or a cage over them
+  // spans that gap.
+  particle_count_ = 0;
+  for (Eigen::Index i = particle_begin_; i < system.muscle_begin[muscle + 1]; ++i) {
+    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) break;
+    ++particle_count_;
+  }
+  if (particle_count_ < 4) throw SkinningError(label + ": fewer than 4 fibre particles");
   triangles_ = rest_surface.triangles;
   const Eigen::Matrix3Xd rest_particles = system.rest_position.middleCols(particle_begin_, particle_count_);
   switch (method_) {
