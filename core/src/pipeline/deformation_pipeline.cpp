@@ -42,6 +42,20 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
     metrics_problem_ = settings_.measure_fidelity ? "needs the surface skinning (" + skinning_problem_ + ")"
                                                   : "turned off (surface_metrics is false)";
   }
+  if (skinning_ && settings_.surface_volume.keep_volume) {
+    // The bones the volume projection keeps surfaces out of: the fields the collision or the metrics built (one set
+    // per scene), none when neither did.
+    const BoneFields& fields = !sim.boneFields().empty() ? sim.boneFields()
+                               : metrics_                ? metrics_->boneFields()
+                                                         : BoneFields{};
+    std::vector<Triangles> triangles;
+    std::vector<Vertices> rest;
+    for (std::size_t m = 0; m < skinning_->muscles().size(); ++m) {
+      triangles.push_back(skinning_->muscles()[m].triangles());
+      rest.push_back(sim.muscles()[m].surface.vertices);
+    }
+    surface_volume_ = std::make_unique<SurfaceVolumeConstraint>(triangles, rest, fields, settings_.surface_volume);
+  }
   frame_.view(sim.system(), sim.state().position, descriptions_, sim.bones(), skinning_.get());
 }
 
@@ -57,6 +71,8 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   frame_.has_surfaces = false;
   frame_.has_metrics = false;
   frame_.skinning_ms = 0;
+  frame_.volume_ms = 0;
+  frame_.volume_corrections.clear();
   frame_.metrics_ms = 0;
   frame_.residual_absent_reason.clear();
   frame_.collision_absent_reason.clear();
@@ -79,6 +95,11 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
     skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
+    if (surface_volume_) {
+      const auto volume_start = std::chrono::steady_clock::now();
+      frame_.volume_corrections = surface_volume_->apply(frame_.surfaces, frame_.bone_transforms);
+      frame_.volume_ms = millisecondsSince(volume_start);
+    }
     frame_.skinning_ms = millisecondsSince(skin_start);
     frame_.has_surfaces = true;
   }

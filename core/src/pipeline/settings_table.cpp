@@ -140,6 +140,10 @@ std::vector<SettingSpec> buildTable() {
       choice<CageKind>("skinning_cage", {"convex_hull", "fibre_tube"}, {CageKind::convex_hull, CageKind::fibre_tube},
                        "mean_value: how the cage is triangulated",
                        [](CoreSettings& s) -> CageKind& { return s.pipeline.skinning.cage; }),
+      boolean("keep_surface_volume",
+              "project every skinned muscle surface back to its rest volume (the PBD volume constraint), never into a "
+              "bone",
+              [](CoreSettings& s) -> bool& { return s.pipeline.surface_volume.keep_volume; }),
       // Stream
       number("max_bone_speed_m_per_s", "m/s", 1e-6, 1e6, "a bone centre faster than this between poses is a teleport",
              [](CoreSettings& s) -> double& { return s.stream.max_bone_speed_m_per_s; }),

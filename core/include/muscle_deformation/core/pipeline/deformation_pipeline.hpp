@@ -7,6 +7,7 @@
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/core/surfaces/surface_volume.hpp"
 
 #include <memory>
 #include <string>
@@ -17,6 +18,7 @@ namespace muscle_deformation {
 struct PipelineSettings {
   SimulationSettings simulation;
   SkinningSettings skinning;
+  SurfaceVolumeSettings surface_volume;  // the skinned surfaces keep their rest volume (applied with the skinning)
   bool skin_surfaces = true;     // precompute surface skinning (needed for ~surfaces and the surface metrics)
   bool measure_fidelity = true;  // precompute the volume / surface-in-bone metrics
 };
@@ -30,7 +32,10 @@ struct FrameResult {
   BoneTransforms bone_transforms;   // indexed by Bone::id
   bool has_surfaces = false;
   std::vector<Vertices> surfaces;   // per muscle, when has_surfaces; triangles in surfaceTriangles(muscle)
-  double skinning_ms = 0;
+  double skinning_ms = 0;           // skinning and the volume projection
+  // Per muscle, what the volume projection did to the skinned surface (empty when it is off or there are no surfaces).
+  std::vector<SurfaceVolumeCorrection> volume_corrections;
+  double volume_ms = 0;             // of skinning_ms, the volume projection's share
   bool has_metrics = false;
   SceneMetrics metrics;             // when has_metrics
   double metrics_ms = 0;
@@ -112,6 +117,7 @@ class DeformationPipeline {
   const PipelineSettings& settings() const { return settings_; }
   const FrameResult& lastFrame() const { return frame_; }
   const SurfaceSkinning* skinning() const { return skinning_.get(); }
+  const SurfaceVolumeConstraint* surfaceVolume() const { return surface_volume_.get(); }
   const DeformationMetrics* metrics() const { return metrics_.get(); }
   const std::string& skinningProblem() const { return skinning_problem_; }
   const std::string& metricsProblem() const { return metrics_problem_; }
@@ -136,6 +142,7 @@ class DeformationPipeline {
   std::unique_ptr<MuscleSimulation> simulation_;
   std::unique_ptr<SurfaceSkinning> skinning_;
   std::unique_ptr<DeformationMetrics> metrics_;
+  std::unique_ptr<SurfaceVolumeConstraint> surface_volume_;
   std::string skinning_problem_, metrics_problem_;
   double skinning_setup_ms_ = 0, metrics_setup_ms_ = 0;
   FrameResult frame_;

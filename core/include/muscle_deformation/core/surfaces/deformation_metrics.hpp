@@ -99,6 +99,7 @@ class DeformationMetrics {
   Eigen::VectorXd fibreLengthRatios(const Eigen::Matrix3Xd& particle_positions) const;
   // Distance field of bone b at rest; to test a posed bone, map the point back with the inverse bone transform.
   const BoneDistanceField& boneField(int bone) const { return *bone_fields_[static_cast<std::size_t>(bone)]; }
+  const std::vector<std::shared_ptr<const BoneDistanceField>>& boneFields() const { return bone_fields_; }
 
  private:
   std::vector<std::string> bone_names_;
