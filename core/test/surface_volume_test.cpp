@@ -117,7 +117,7 @@ TEST(SurfaceVolume, RefusesASurfaceWithoutVolumeAndMismatchedInput) {
   std::vector<Vertices> two{kCylinder.vertices, kCylinder.vertices};
   EXPECT_THROW(constraint.apply(two, {}), std::invalid_argument);
   SurfaceVolumeSettings bad;
-  bad.max_projections = 0;
+  bad.max_rounds = 0;
   EXPECT_FALSE(validate(bad).empty());
   EXPECT_THROW(SurfaceVolumeConstraint({kCylinder.triangles}, {kCylinder.vertices}, {}, bad), std::invalid_argument);
 }

@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
 
+#include <array>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -7,7 +8,7 @@
 namespace muscle_deformation {
 
 std::string validate(const SurfaceVolumeSettings& settings) {
-  if (settings.max_projections < 1) return "max_projections must be >= 1";
+  if (settings.max_rounds < 1) return "max_rounds must be >= 1";
   if (!(settings.tolerance_fraction > 0) || !std::isfinite(settings.tolerance_fraction))
     return "tolerance_fraction must be a positive number";
   return {};
@@ -15,17 +16,14 @@ std::string validate(const SurfaceVolumeSettings& settings) {
 
 namespace {
 
-// Added to twice a vertex's first move when proving it far from the bones, so that the later, smaller projections of
-// the same frame rarely need another look.
-constexpr double kClearanceMarginM = 0.0005;
 // Moves shorter than this many voxels of the finest bone field are not checked against the bones (the field is exact
 // at voxel centres only, to about half a voxel in between).
 constexpr double kUncheckedTravelVoxels = 0.25;
 
-// Six times the signed enclosed volume and its gradient (times six) at every vertex, about the vertices' centroid (so
-// that far from the origin the triple products do not lose digits).
-double sixTimesVolume(const Vertices& vertices, const Triangles& triangles, Eigen::Matrix3Xd& gradient) {
-  const Eigen::Vector3d centre = vertices.rowwise().mean();
+// Six times the signed enclosed volume and its gradient (times six) at every vertex, about `centre` (so that far from
+// the origin the triple products do not lose digits).
+double sixTimesVolume(const Vertices& vertices, const Triangles& triangles, const Eigen::Vector3d& centre,
+                      Eigen::Matrix3Xd& gradient) {
   gradient.setZero(3, vertices.cols());
   double six_volume = 0;
   for (Eigen::Index t = 0; t < triangles.cols(); ++t) {
@@ -38,6 +36,39 @@ double sixTimesVolume(const Vertices& vertices, const Triangles& triangles, Eige
     gradient.col(c) += pa.cross(pb);
   }
   return six_volume;
+}
+
+// Six times the signed volume of the surface with every vertex moved by `offset` along its direction, as the cubic
+// c[0] + c[1] offset + c[2] offset^2 + c[3] offset^3 (each triangle's triple product is a cubic in the offset).
+std::array<double, 4> sixTimesVolumeAlong(const Vertices& vertices, const Eigen::Matrix3Xd& directions,
+                                          const Triangles& triangles, const Eigen::Vector3d& centre) {
+  std::array<double, 4> c{0, 0, 0, 0};
+  for (Eigen::Index t = 0; t < triangles.cols(); ++t) {
+    const int a = triangles(0, t), b = triangles(1, t), k = triangles(2, t);
+    const Eigen::Vector3d pa = vertices.col(a) - centre, pb = vertices.col(b) - centre, pc = vertices.col(k) - centre;
+    const Eigen::Vector3d da = directions.col(a), db = directions.col(b), dc = directions.col(k);
+    const Eigen::Vector3d pb_pc = pb.cross(pc), db_pc = db.cross(pc), pb_dc = pb.cross(dc), db_dc = db.cross(dc);
+    c[0] += pa.dot(pb_pc);
+    c[1] += da.dot(pb_pc) + pa.dot(db_pc + pb_dc);
+    c[2] += pa.dot(db_dc) + da.dot(db_pc + pb_dc);
+    c[3] += da.dot(db_dc);
+  }
+  return c;
+}
+
+// The root of c[0] - target + c[1] x + c[2] x^2 + c[3] x^3 nearest 0, by Newton from the linear estimate (the
+// polynomial is monotone near 0 for any offset smaller than the surface's radius of curvature).
+double offsetFor(const std::array<double, 4>& c, double target) {
+  double x = c[1] != 0 ? (target - c[0]) / c[1] : 0.0;
+  for (int i = 0; i < 20; ++i) {
+    const double value = c[0] - target + x * (c[1] + x * (c[2] + x * c[3]));
+    const double slope = c[1] + x * (2 * c[2] + 3 * x * c[3]);
+    if (!(std::abs(slope) > 0)) break;
+    const double step = value / slope;
+    x -= step;
+    if (std::abs(step) <= 1e-12 * (1 + std::abs(x))) break;
+  }
+  return x;
 }
 
 }  // namespace
@@ -56,9 +87,8 @@ SurfaceVolumeConstraint::SurfaceVolumeConstraint(const std::vector<Triangles>& t
     const double resolution = kUncheckedTravelVoxels * bone_fields_[b]->voxel();
     unchecked_travel_m_ = b == 0 ? resolution : std::min(unchecked_travel_m_, resolution);
   }
-  Eigen::Matrix3Xd gradient;
   for (std::size_t m = 0; m < triangles.size(); ++m) {
-    const double volume = sixTimesVolume(rest_vertices[m], triangles[m], gradient) / 6.0;
+    const double volume = enclosedVolume(rest_vertices[m], triangles[m]);
     if (!(std::abs(volume) > 0) || !std::isfinite(volume))
       throw std::invalid_argument("surface volume: muscle " + std::to_string(m) + " encloses no volume at rest");
     rest_volume_.push_back(std::abs(volume));
@@ -96,84 +126,66 @@ SurfaceVolumeCorrection SurfaceVolumeConstraint::project(int muscle, Vertices& s
   SurfaceVolumeCorrection correction;
   const Eigen::Index n = surface.cols();
   if (n == 0) return correction;
-  const Vertices start = surface;
-  std::vector<char> held(static_cast<std::size_t>(n), 0);
+  const Eigen::Vector3d centre = surface.rowwise().mean();
+  Eigen::Matrix3Xd directions;
+  const double volume = winding * sixTimesVolume(surface, triangles, centre, directions) / 6.0;
+  correction.volume_error_before_pct = correction.volume_error_after_pct = 100.0 * (volume - rest) / rest;
+  if (std::abs(volume - rest) <= settings_.tolerance_fraction * rest) return correction;
+
+  // Every vertex moves the same distance along its normal (the volume gradient's direction): with w_i = 1 / |grad_i V|
+  // that is the PBD projection, and along fixed normals the volume is a cubic in the distance, solved exactly.
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double length = directions.col(i).norm();
+    directions.col(i) = length > 0 ? Eigen::Vector3d(winding * directions.col(i) / length) : Eigen::Vector3d::Zero();
+  }
   std::vector<BoneDistanceField::Probe> probes;
   probes.reserve(bone_fields_.size());
   for (const auto& field : bone_fields_) probes.push_back(field->probe());
-  // How far `point` is from every bone at least (a lower bound, exact below `limit`); +infinity away from all bones.
-  // Most points are proven farther than `limit` by one voxel read.
-  const auto boneClearance = [&](const Eigen::Vector3d& point, double limit) {
-    double nearest = std::numeric_limits<double>::infinity();
+  // Signed distance to the nearest bone the point is inside of (+infinity when it is inside none); one voxel read
+  // proves most points outside.
+  const auto insideDepth = [&](const Eigen::Vector3d& point) {
+    double deepest = std::numeric_limits<double>::infinity();
     for (std::size_t b = 0; b < bone_fields_.size(); ++b) {
       const AlignedBox& box = bone_reach[b];
       if ((point.array() < box.min.array()).any() || (point.array() > box.max.array()).any()) continue;
       double distance = 0;
       Eigen::Vector3d unused;
-      probes[b].closerThan(to_bone_rest[b] * point, limit, distance, unused);
-      nearest = std::min(nearest, distance);
+      if (probes[b].closerThan(to_bone_rest[b] * point, 0.0, distance, unused)) deepest = std::min(deepest, distance);
     }
-    return nearest;
+    return deepest;
   };
-  // A vertex that stays within `clearance` of where it started cannot have entered a bone; only one that travels
-  // farther is looked at where it lands.
-  std::vector<double> clearance(static_cast<std::size_t>(n), -std::numeric_limits<double>::infinity());
-  std::vector<char> clearance_known(static_cast<std::size_t>(n), 0);
 
-  Eigen::Matrix3Xd gradient;
-  for (int projection = 0; projection <= settings_.max_projections; ++projection) {
-    const double volume = winding * sixTimesVolume(surface, triangles, gradient) / 6.0;
-    if (projection == 0) correction.volume_error_before_pct = 100.0 * (volume - rest) / rest;
-    correction.volume_error_after_pct = 100.0 * (volume - rest) / rest;
-    const double excess = volume - rest;
-    if (std::abs(excess) <= settings_.tolerance_fraction * rest || projection == settings_.max_projections) break;
-    gradient *= winding / 6.0;
-    // Each vertex weighs as much as its share of the surface (w_i = 1 / |grad_i V|, grad_i V being a third of the area
-    // around it along its normal): every vertex then moves the same distance along its normal, whatever the sizes of
-    // its triangles (with equal weights a vertex with large triangles around it, such as the centre of a cap, moves
-    // centimetres while its neighbours move micrometres).
-    double weight_sum = 0;
-    for (Eigen::Index i = 0; i < n; ++i)
-      if (!held[static_cast<std::size_t>(i)]) weight_sum += gradient.col(i).norm();
-    if (!(weight_sum > 0)) break;
-    const double offset = -excess / weight_sum;
-    for (Eigen::Index i = 0; i < n; ++i) {
-      const std::size_t v = static_cast<std::size_t>(i);
-      const double length = gradient.col(i).norm();
-      if (held[v] || !(length > 0)) continue;
-      const Eigen::Vector3d moved = surface.col(i) + (offset / length) * gradient.col(i);
-      if (!bone_fields_.empty()) {
-        const double travel = (moved - start.col(i)).norm();
-        // A move below the fields' resolution is not looked at: the projection puts no vertex deeper than that into a
-        // bone.
-        if (travel <= unchecked_travel_m_) {
-          surface.col(i) = moved;
-          continue;
-        }
-        if (!clearance_known[v]) {
-          clearance[v] = boneClearance(start.col(i), 2 * travel + kClearanceMarginM);
-          clearance_known[v] = 1;
-        }
-        // Never into a bone, nor deeper into one it already is in (the bundled data put some vertices there at rest).
-        if (travel >= clearance[v]) {
-          const double after = boneClearance(moved, 0.0);
-          if (after < 0 && after < boneClearance(start.col(i), 0.0)) {
-            held[v] = 1;
-            ++correction.vertices_held_by_bone;
-            continue;
-          }
+  double offset = 0;
+  for (int round = 0; round < settings_.max_rounds; ++round) {
+    const std::array<double, 4> cubic = sixTimesVolumeAlong(surface, directions, triangles, centre);
+    offset = offsetFor(cubic, 6.0 * winding * rest);
+    // A vertex the offset would put into a bone, or deeper into one it already is in (the bundled data put some there
+    // at rest), keeps its place, and the others make up the volume in the next round. An offset below the fields'
+    // resolution is not checked.
+    int newly_held = 0;
+    if (!bone_fields_.empty() && std::abs(offset) > unchecked_travel_m_) {
+      for (Eigen::Index i = 0; i < n; ++i) {
+        if (directions.col(i).isZero()) continue;
+        const double after = insideDepth(surface.col(i) + offset * directions.col(i));
+        if (after < 0 && after < insideDepth(surface.col(i))) {
+          directions.col(i).setZero();
+          ++newly_held;
         }
       }
-      surface.col(i) = moved;
     }
+    correction.vertices_held_by_bone += newly_held;
+    if (newly_held == 0) break;
   }
-  double offset_sum = 0;
+  int moved = 0;
   for (Eigen::Index i = 0; i < n; ++i) {
-    const double offset = (surface.col(i) - start.col(i)).norm();
-    offset_sum += offset;
-    correction.max_offset_m = std::max(correction.max_offset_m, offset);
+    if (directions.col(i).isZero()) continue;
+    surface.col(i) += offset * directions.col(i);
+    ++moved;
   }
-  correction.mean_offset_m = offset_sum / static_cast<double>(n);
+  const double after = winding * enclosedVolume(surface, triangles);
+  correction.volume_error_after_pct = 100.0 * (after - rest) / rest;
+  correction.max_offset_m = moved > 0 ? std::abs(offset) : 0.0;
+  correction.mean_offset_m = std::abs(offset) * moved / static_cast<double>(n);
   return correction;
 }
 

@@ -5,9 +5,10 @@
 // muscle that shortens should bulge and does not. The constraint C = V(surface) - V_rest is projected in the PBD way,
 //   delta p_i = -C w_i grad_i V / sum_j w_j |grad_j V|^2,   grad_i V = 1/6 sum over the triangles (i, j, k) of p_j x p_k,
 // with each vertex weighted by its share of the surface (w_i = 1 / |grad_i V|), which moves every vertex the same
-// distance along its normal (outwards when volume was lost), and repeated until the volume is met (C is cubic in the
-// positions: two or three projections bring it within 0.01 %). Vertices the move would put into a bone (its distance
-// field) keep their place instead (w_i = 0) and the others make up the volume.
+// distance along its normal (outwards when volume was lost). Along fixed normals the enclosed volume is a cubic in
+// that distance, so the distance that restores the rest volume is solved for exactly (the PBD projection repeated to
+// convergence). Vertices the move would put into a bone (its distance field) keep their place instead (w_i = 0) and
+// the others make up the volume.
 #pragma once
 
 #include "muscle_deformation/core/collision/bone_distance_field.hpp"
@@ -21,8 +22,8 @@ namespace muscle_deformation {
 
 struct SurfaceVolumeSettings {
   bool keep_volume = true;            // project every skinned surface to its rest volume
-  int max_projections = 4;            // per muscle and frame
-  double tolerance_fraction = 1e-4;   // stop once |V - V_rest| <= this x V_rest (0.01 %)
+  int max_rounds = 4;                 // per muscle and frame: a round solves again once vertices were held by a bone
+  double tolerance_fraction = 1e-4;   // a surface within this fraction of its rest volume (0.01 %) is left as it is
 };
 
 std::string validate(const SurfaceVolumeSettings& settings);
