@@ -319,18 +319,23 @@ TriangleMesh repairSurface(const TriangleMesh& mesh, SurfaceRepairReport& report
   return toMesh(surface);
 }
 
-TriangleMesh loadRepairedClosedSurface(const std::string& path, double scale_to_metres, SurfaceRepairReport& report) {
+TriangleMesh closedOrRepaired(const TriangleMesh& mesh, const std::string& source, SurfaceRepairReport& report,
+                              std::string* defects) {
   report = SurfaceRepairReport{};
-  const TriangleMesh mesh = loadTriangleMesh(path, scale_to_metres);
   const SurfaceTopologyReport found = checkSurfaceTopology(mesh);
+  if (defects) *defects = found.closedManifold() ? "" : found.describe();
   if (found.closedManifold()) return mesh;  // a good surface is used exactly as stored
   TriangleMesh repaired = repairSurface(mesh, report);
   const SurfaceTopologyReport left = checkSurfaceTopology(repaired);
   if (!left.closedManifold() || repaired.triangleCount() < 4)
-    throw LoadError(path + ": is not a closed, consistently oriented 2-manifold surface (" + found.describe() +
+    throw LoadError(source + ": is not a closed, consistently oriented 2-manifold surface (" + found.describe() +
                     ") and the repair could not make it one (" + report.describe() + "; left: " +
                     (repaired.triangleCount() < 4 ? std::string("fewer than 4 triangles") : left.describe()) + ")");
   return repaired;
+}
+
+TriangleMesh loadRepairedClosedSurface(const std::string& path, double scale_to_metres, SurfaceRepairReport& report) {
+  return closedOrRepaired(loadTriangleMesh(path, scale_to_metres), path, report);
 }
 
 }  // namespace muscle_deformation

@@ -30,6 +30,12 @@ struct SurfaceRepairReport {
 // visible rather than hidden behind an invented surface.
 TriangleMesh repairSurface(const TriangleMesh& mesh, SurfaceRepairReport& report);
 
+// `mesh` exactly as it is when it is closed (`report` says nothing changed), otherwise its repair; throws LoadError
+// naming `source` (its file), the defects found and what the repair left when it cannot close it. `defects`, if given,
+// receives what made the surface not closed ("" when it was).
+TriangleMesh closedOrRepaired(const TriangleMesh& mesh, const std::string& source, SurfaceRepairReport& report,
+                              std::string* defects = nullptr);
+
 // loadClosedSurface with the repair: a surface that is already closed is returned exactly as stored (`report` says
 // nothing changed); any other is repaired and `report` says how. Throws LoadError naming the file, the defects found
 // and what the repair left when it cannot close the surface.
