@@ -26,32 +26,18 @@ namespace {
 constexpr double kRadius = 0.01;    // m
 constexpr double kCylinder = 0.06;  // m, length of the straight part, from z = 0 to z = kCylinder
 
-// Capsule along z: a cylinder of radius kRadius from z = 0 to kCylinder with hemispherical caps, as a closed
-// UV-sphere-like mesh wound outwards.
-md::TriangleMesh capsule(int segments = 48, int cap_rings = 12, int body_rings = 24) {
+// A closed surface of revolution about z, wound outwards: rings at heights ring_z (increasing) with radii ring_r,
+// between a pole at z_bottom (below the first ring) and one at z_top (above the last).
+md::TriangleMesh surfaceOfRevolution(const std::vector<double>& ring_z, const std::vector<double>& ring_r,
+                                     double z_bottom, double z_top, int segments) {
   std::vector<Eigen::Vector3d> points;
-  points.emplace_back(0, 0, -kRadius);  // bottom pole
-  std::vector<double> ring_z, ring_r;
-  for (int i = 1; i <= cap_rings; ++i) {  // bottom cap, up to the equator z = 0
-    const double a = -M_PI / 2 + M_PI / 2 * i / cap_rings;
-    ring_z.push_back(kRadius * std::sin(a));
-    ring_r.push_back(kRadius * std::cos(a));
-  }
-  for (int i = 1; i <= body_rings; ++i) {
-    ring_z.push_back(kCylinder * i / body_rings);
-    ring_r.push_back(kRadius);
-  }
-  for (int i = 1; i < cap_rings; ++i) {  // top cap, above z = kCylinder
-    const double a = M_PI / 2 * i / cap_rings;
-    ring_z.push_back(kCylinder + kRadius * std::sin(a));
-    ring_r.push_back(kRadius * std::cos(a));
-  }
+  points.emplace_back(0, 0, z_bottom);
   for (std::size_t r = 0; r < ring_z.size(); ++r)
     for (int s = 0; s < segments; ++s) {
       const double phi = 2 * M_PI * s / segments;
       points.emplace_back(ring_r[r] * std::cos(phi), ring_r[r] * std::sin(phi), ring_z[r]);
     }
-  points.emplace_back(0, 0, kCylinder + kRadius);  // top pole
+  points.emplace_back(0, 0, z_top);
   const int rings = static_cast<int>(ring_z.size());
   const int top = static_cast<int>(points.size()) - 1;
   auto at = [&](int ring, int s) { return 1 + ring * segments + (s % segments); };
@@ -69,6 +55,40 @@ md::TriangleMesh capsule(int segments = 48, int cap_rings = 12, int body_rings =
   mesh.triangles.resize(3, static_cast<Eigen::Index>(faces.size()));
   for (std::size_t i = 0; i < faces.size(); ++i) mesh.triangles.col(static_cast<Eigen::Index>(i)) = faces[i];
   return mesh;
+}
+
+// Capsule along z: a cylinder of radius kRadius from z = 0 to kCylinder with hemispherical caps.
+md::TriangleMesh capsule(int segments = 48, int cap_rings = 12, int body_rings = 24) {
+  std::vector<double> ring_z, ring_r;
+  for (int i = 1; i <= cap_rings; ++i) {  // bottom cap, up to the equator z = 0
+    const double a = -M_PI / 2 + M_PI / 2 * i / cap_rings;
+    ring_z.push_back(kRadius * std::sin(a));
+    ring_r.push_back(kRadius * std::cos(a));
+  }
+  for (int i = 1; i <= body_rings; ++i) {
+    ring_z.push_back(kCylinder * i / body_rings);
+    ring_r.push_back(kRadius);
+  }
+  for (int i = 1; i < cap_rings; ++i) {  // top cap, above z = kCylinder
+    const double a = M_PI / 2 * i / cap_rings;
+    ring_z.push_back(kCylinder + kRadius * std::sin(a));
+    ring_r.push_back(kRadius * std::cos(a));
+  }
+  return surfaceOfRevolution(ring_z, ring_r, -kRadius, kCylinder + kRadius, segments);
+}
+
+// Shaped like a psoas: a spindle-shaped belly 18 mm in radius over the upper 22 cm, running into a tendon 2.5 mm in
+// radius over the lower 8 cm (0.2 cm^2 across, as the psoas that got 13 of 64 fibres).
+constexpr double kTendonRadius = 0.0025, kBellyRadius = 0.018, kBellyStart = 0.08, kMuscleTop = 0.30;
+md::TriangleMesh psoasLike() {
+  std::vector<double> ring_z, ring_r;
+  for (int i = 1; i <= 120; ++i) {
+    const double z = kMuscleTop * i / 121.0;
+    const double belly = z > kBellyStart ? kBellyRadius * std::sin(M_PI * (z - kBellyStart) / (kMuscleTop - kBellyStart)) : 0;
+    ring_z.push_back(z);
+    ring_r.push_back(std::max(kTendonRadius, belly));
+  }
+  return surfaceOfRevolution(ring_z, ring_r, 0.0, kMuscleTop, 32);
 }
 
 // The two hemispherical caps as patches: origin at the bottom (z <= 0), insertion at the top (z >= kCylinder).
@@ -256,6 +276,48 @@ TEST(FibreGenerator, ChecksCatchFibresOutsideOffThePatchesAndTouching) {
   EXPECT_LT(report.coverage, 0.9);
 }
 
+// The seeds are spread over the largest cross-section, in the belly: a muscle that narrows into a long thin tendon gets
+// its full fibre count there, where the field's mid-value, which falls in the tendon, left most of the fibres out.
+TEST(FibreGenerator, AMuscleWithAThinTendonGetsItsFullFibreCountSeededInTheBelly) {
+  const md::TriangleMesh muscle = psoasLike();
+  ASSERT_TRUE(md::checkSurfaceTopology(muscle).closedManifold());
+  md::FibreGeneratorOptions options;
+  options.min_inside_voxels = 30000;
+
+  const md::FibreGenerationResult belly = md::generateFibres(muscle, nullptr, nullptr, options);
+  EXPECT_EQ(belly.fibres.size(), 64u);
+  EXPECT_TRUE(belly.checks.passed()) << belly.checks.describe();
+  EXPECT_GT(belly.checks.cross_section_area, 0.5 * M_PI * kBellyRadius * kBellyRadius) << belly.checks.describe();
+  for (const md::Polyline& fibre : belly.fibres)  // every fibre runs from the belly's end down the tendon
+    EXPECT_LT(fibre(2, fibre.cols() - 1), 0.05);
+
+  options.seed_section = md::SeedSection::mid_value;
+  const md::FibreGenerationResult mid = md::generateFibres(muscle, nullptr, nullptr, options);
+  EXPECT_LT(mid.checks.cross_section_area, 2 * M_PI * kTendonRadius * kTendonRadius) << mid.checks.describe();
+  EXPECT_LT(mid.fibres.size(), 64u) << mid.checks.describe();
+  EXPECT_FALSE(mid.checks.passed());
+}
+
+// A muscle whose bone is absent or too far still gets its fibres, along its principal axis, and a warning saying so.
+TEST(FibreGenerator, AnAbsentOrFarBoneGivesFibresAlongThePrincipalAxisWithAWarning) {
+  const md::TriangleMesh mesh = capsule();
+  md::FibreGeneratorOptions options = smallOptions();
+  options.fibre_count = 8;
+  const md::TriangleMesh top = box({-0.02, -0.02, kCylinder + kRadius}, {0.02, 0.02, kCylinder + kRadius + 0.01});
+  const md::TriangleMesh far = box({0.5, 0.5, 0.5}, {0.6, 0.6, 0.6});
+  const md::FibreGenerationResult result = md::generateFibres(mesh, &top, &far, options);
+  EXPECT_TRUE(result.checks.passed()) << result.checks.describe();
+  EXPECT_EQ(result.fibres.size(), 8u);
+  ASSERT_EQ(result.warnings.size(), 1u);
+  EXPECT_CONTAINS(result.warnings[0], "no usable insertion bone region");
+  EXPECT_CONTAINS(result.warnings[0], "too far");
+
+  const md::FibreGenerationResult without = md::generateFibres(mesh, &top, nullptr, options);
+  EXPECT_TRUE(without.checks.passed()) << without.checks.describe();
+  ASSERT_EQ(without.warnings.size(), 1u);
+  EXPECT_CONTAINS(without.warnings[0], "none given");
+}
+
 // Every committed fibre file passes the checks against its surface and the patches its scene bones give.
 TEST(FibreGenerator, EveryCommittedFibreFilePassesTheChecks) {
   const std::string package = MD_PACKAGE_DIR;
@@ -266,7 +328,8 @@ TEST(FibreGenerator, EveryCommittedFibreFilePassesTheChecks) {
                                       scene.frame)) {
     bones[bone.name] = std::move(bone.surface);
   }
-  const md::FibreGeneratorOptions options;  // the defaults generate_fibres used
+  md::FibreGeneratorOptions options;  // the defaults generate_fibres used then: seeds on the field's mid-value
+  options.seed_section = md::SeedSection::mid_value;
   for (const md::MuscleDescription& m : scene.muscles) {
     SCOPED_TRACE(m.name);
     const md::TriangleMesh surface = md::loadClosedSurface(md::resolveScenePath(scene, m.surface_file));

@@ -803,6 +803,17 @@ void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& line
   write(path, writer);
 }
 
+std::string recordedFibreCheckFailures(const std::string& path) {
+  std::ifstream in(path);
+  std::string first, title;
+  if (!std::getline(in, first) || first.rfind("# vtk DataFile", 0) != 0 || !std::getline(in, title)) return "";
+  const std::size_t mark = title.find(kFibreChecksFailedMark);
+  if (mark == std::string::npos) return "";
+  std::string failures = title.substr(mark + std::strlen(kFibreChecksFailedMark));
+  while (!failures.empty() && std::isspace(static_cast<unsigned char>(failures.back()))) failures.pop_back();
+  return failures;
+}
+
 void saveTriangleMeshStl(const std::string& path, const TriangleMesh& mesh) {
   const Eigen::Index n = mesh.vertexCount();
   for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t) {

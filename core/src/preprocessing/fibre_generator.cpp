@@ -1,8 +1,9 @@
 // Fibre generation inside a closed surface (Choi & Blemker 2013): voxelise, solve Laplace's equation with Dirichlet
-// patches at origin and insertion, trace gradient streamlines from seeds spread over the mid cross-section.
+// patches at origin and insertion, trace gradient streamlines from seeds spread over a cross-section (an iso-surface).
 #include "muscle_deformation/preprocessing/fibre_generator.hpp"
 
 #include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/IterativeLinearSolvers>
@@ -462,24 +463,29 @@ Field solveField(const TriangleMesh& surface, const AttachmentPatches& patches, 
   return f;
 }
 
-// Points where the field crosses 0.5 along voxel edges, each with the iso-surface area it stands for.
+// Points where the field crosses `level` along voxel edges, each with the iso-surface area it stands for.
 struct CrossSection {
   std::vector<Eigen::Vector3d> points;
   std::vector<double> areas;
   double area = 0;
+  double level = 0.5;
+  double volume_fraction = 0;  // share of the solved voxels with a field value below `level`
 };
 
-CrossSection midCrossSection(const Field& f) {
+CrossSection crossSectionAt(const Field& f, double level) {
   CrossSection out;
+  out.level = level;
   const Grid& g = f.grid;
-  long nb[6];
+  long nb[6], domain = 0, below = 0;
   for (std::size_t v = 0; v < f.domain.size(); ++v) {
     if (!f.domain[v]) continue;
+    ++domain;
+    if (f.phi[v] < level) ++below;
     g.neighbours(static_cast<long>(v), nb);
     for (int a = 0; a < 3; ++a) {
       const long w = nb[2 * a + 1];
       if (w < 0 || !f.domain[static_cast<std::size_t>(w)]) continue;
-      const double p0 = f.phi[v] - 0.5, p1 = f.phi[static_cast<std::size_t>(w)] - 0.5;
+      const double p0 = f.phi[v] - level, p1 = f.phi[static_cast<std::size_t>(w)] - level;
       if (!((p0 < 0 && p1 >= 0) || (p0 >= 0 && p1 < 0))) continue;
       const double t = p0 / (p0 - p1);
       const Eigen::Vector3d p = (1 - t) * g.centre(static_cast<long>(v)) + t * g.centre(w);
@@ -492,7 +498,36 @@ CrossSection midCrossSection(const Field& f) {
       out.area += weight;
     }
   }
+  out.volume_fraction = domain > 0 ? static_cast<double>(below) / static_cast<double>(domain) : 0;
   return out;
+}
+
+// The cross-sections the seeds may be spread over (FibreGeneratorOptions::seed_section), the preferred first: the
+// field's 0.5 iso-surface alone, or the iso-surfaces at 10, 15, ... 90 % of the volume from the origin, largest first.
+// Those are taken at shares of the volume rather than at field values because where a muscle narrows into a tendon the
+// field drops steeply: equal steps of the field would crowd into the tendon and skip over the belly. Levels within
+// kPatchLevelMargin of a patch's value are left out: there the field is flat, in pockets of the muscle beyond a patch
+// that no streamline runs through.
+constexpr double kPatchLevelMargin = 0.02;
+std::vector<CrossSection> seedingCrossSections(const Field& f, const FibreGeneratorOptions& options) {
+  if (options.seed_section == SeedSection::mid_value) return {crossSectionAt(f, 0.5)};
+  std::vector<double> values;
+  for (std::size_t v = 0; v < f.domain.size(); ++v)
+    if (f.domain[v]) values.push_back(f.phi[v]);
+  std::sort(values.begin(), values.end());
+  std::vector<CrossSection> sections;
+  double previous = -1;
+  for (int percent = 10; percent <= 90; percent += 5) {
+    const double level = values[static_cast<std::size_t>(percent / 100.0 * static_cast<double>(values.size() - 1))];
+    if (level < kPatchLevelMargin || level > 1.0 - kPatchLevelMargin || level == previous) continue;
+    previous = level;
+    CrossSection section = crossSectionAt(f, level);
+    if (!section.points.empty()) sections.push_back(std::move(section));
+  }
+  if (sections.empty()) return {crossSectionAt(f, 0.5)};
+  std::stable_sort(sections.begin(), sections.end(),
+                   [](const CrossSection& a, const CrossSection& b) { return a.area > b.area; });
+  return sections;
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -732,8 +767,127 @@ double polylineDistance(const Polyline& a, const Polyline& b, const AlignedBox& 
   return best;
 }
 
+// The fibres traced from seeds spread over one cross-section, and what it took.
+struct TracedFibres {
+  std::vector<Polyline> fibres;
+  int failed_seeds = 0, merged_fibres = 0, reseed_rounds = 0;  // as in FibreGenerationResult
+};
+
+// Streamlines of a field from seeds on a cross-section to both patches, finished on the surface and resampled.
+class StreamlineTracer {
+ public:
+  StreamlineTracer(const Field& field, const TriangleMesh& surface, const AttachmentPatches& patches,
+                   const FibreGeneratorOptions& options)
+      : field_(field),
+        surface_(surface),
+        options_(options),
+        h_(field.grid.h),
+        step_(options.step_voxels * field.grid.h),
+        origin_surface_(patchSurface(surface, patches.origin_vertices)),
+        insertion_surface_(patchSurface(surface, patches.insertion_vertices)),
+        origin_distance_(origin_surface_.vertices, origin_surface_.triangles),
+        insertion_distance_(insertion_surface_.vertices, insertion_surface_.triangles) {
+    const AlignedBox box = boundsOf(surface.vertices);
+    max_steps_ = static_cast<int>(4.0 * (box.max - box.min).norm() / step_) + 10;
+  }
+
+  // Seeds whose streamline misses a patch (it runs into the rim or a stagnation point) are excluded with their
+  // neighbourhood and the seeds are spread again, up to five times.
+  TracedFibres traceFrom(const CrossSection& section) const {
+    TracedFibres out;
+    std::vector<char> allowed(section.points.size(), 1);
+    const double spacing = std::sqrt(section.area / (M_PI * options_.fibre_count));
+    for (int round = 0; round < 6; ++round) {
+      const std::vector<std::size_t> seeds = spreadSeeds(section, allowed, options_.fibre_count);
+      std::vector<Polyline> fibres;
+      std::vector<std::size_t> failed, traced_seeds;
+      for (std::size_t seed : seeds) {
+        Polyline fibre;
+        if (!traceFibre(section.points[seed], fibre)) {
+          failed.push_back(seed);
+          continue;
+        }
+        fibres.push_back(std::move(fibre));
+        traced_seeds.push_back(seed);
+      }
+      // Streamlines funnelled into a narrow tendon can come within micrometres of each other (and would coincide once
+      // written with finite precision): keep the first of such a pair, reseed near the other.
+      const double min_separation = options_.min_separation;
+      std::vector<AlignedBox> boxes;
+      for (const Polyline& fibre : fibres) boxes.push_back(boundsOf(fibre));
+      std::vector<char> drop(fibres.size(), 0);
+      for (std::size_t a = 0; a < fibres.size(); ++a)
+        for (std::size_t b = a + 1; b < fibres.size(); ++b)
+          if (!drop[a] && !drop[b] &&
+              polylineDistance(fibres[a], fibres[b], boxes[a], boxes[b], min_separation) < min_separation) {
+            drop[b] = 1;
+          }
+      std::vector<Polyline> kept;
+      int merged = 0;
+      for (std::size_t i = 0; i < fibres.size(); ++i) {
+        if (drop[i]) {
+          failed.push_back(traced_seeds[i]);
+          ++merged;
+        } else {
+          kept.push_back(std::move(fibres[i]));
+        }
+      }
+      fibres.swap(kept);
+      if (failed.empty() || round == 5) {  // the last round's losses are not reseeded: the count shows them
+        out.fibres = std::move(fibres);
+        break;
+      }
+      out.failed_seeds += static_cast<int>(failed.size());
+      out.merged_fibres += merged;
+      ++out.reseed_rounds;
+      for (std::size_t s = 0; s < section.points.size(); ++s)
+        for (std::size_t f : failed)
+          if ((section.points[s] - section.points[f]).norm() < 0.5 * spacing) allowed[s] = 0;
+    }
+    return out;
+  }
+
+ private:
+  // The fibre through `start`, origin first; false if its streamline misses a patch either way.
+  bool traceFibre(const Eigen::Vector3d& start, Polyline& fibre) const {
+    std::vector<Eigen::Vector3d> back, forward;
+    if (!traceStreamline(field_, start, -1.0, 0, origin_distance_, step_, max_steps_, back) ||
+        !traceStreamline(field_, start, +1.0, 1, insertion_distance_, step_, max_steps_, forward)) {
+      return false;
+    }
+    std::vector<Eigen::Vector3d> points;
+    for (auto it = back.rbegin(); it != back.rend(); ++it) points.push_back(*it);
+    points.push_back(start);
+    points.insert(points.end(), forward.begin(), forward.end());
+    // End exactly on the attachment: continue the last step until it meets the patch (distinct streamlines meet it
+    // at distinct points, unlike closest-point projection, which sends neighbours to the same patch vertex).
+    // If that exit is not on the patch (the last step ran along the surface), the streamline keeps its own end,
+    // which lies in a Dirichlet voxel next to the patch.
+    Eigen::Vector3d hit;
+    if (points.size() >= 2 && rayExit(surface_, points[1], points[0], 3 * h_, hit) &&
+        origin_distance_.distance(hit) <= h_) {
+      points.insert(points.begin(), hit);
+    }
+    if (points.size() >= 2 && rayExit(surface_, points[points.size() - 2], points.back(), 3 * h_, hit) &&
+        insertion_distance_.distance(hit) <= h_) {
+      points.push_back(hit);
+    }
+    fibre = resample(points, options_.points_per_fibre);
+    return true;
+  }
+
+  const Field& field_;
+  const TriangleMesh& surface_;
+  const FibreGeneratorOptions& options_;
+  double h_, step_;
+  int max_steps_ = 0;
+  TriangleMesh origin_surface_, insertion_surface_;
+  SurfaceDistance origin_distance_, insertion_distance_;
+};
+
+// The checks, with the coverage measured on `section` (the one the seeds were spread over).
 FibreCheckReport runChecks(const TriangleMesh& surface, const AttachmentPatches& patches,
-                           const std::vector<Polyline>& fibres, const Field& field,
+                           const std::vector<Polyline>& fibres, const Field& field, const CrossSection& section,
                            const FibreGeneratorOptions& options) {
   FibreCheckReport r;
   r.fibre_count = static_cast<int>(fibres.size());
@@ -798,9 +952,10 @@ FibreCheckReport runChecks(const TriangleMesh& surface, const AttachmentPatches&
   if (fibres.size() < 2) r.min_pairwise_distance = 0;
   if (fibres.size() >= 2 && !(r.min_pairwise_distance > 0)) r.failures.push_back("two fibres touch or cross");
 
-  // Coverage of the mid cross-section.
-  const CrossSection section = midCrossSection(field);
+  // Coverage of the seeding cross-section.
   r.cross_section_area = section.area;
+  r.section_level = section.level;
+  r.section_volume_fraction = section.volume_fraction;
   r.coverage_radius = 1.5 * std::sqrt(section.area / (M_PI * static_cast<double>(fibres.size())));
   double covered = 0;
   for (std::size_t s = 0; s < section.points.size(); ++s) {
@@ -814,7 +969,7 @@ FibreCheckReport runChecks(const TriangleMesh& surface, const AttachmentPatches&
   r.coverage = section.area > 0 ? covered / section.area : 0;
   if (r.coverage < r.min_coverage) {
     std::ostringstream msg;
-    msg << "fibres cover " << std::fixed << std::setprecision(1) << 100 * r.coverage << " % of the mid cross-section";
+    msg << "fibres cover " << std::fixed << std::setprecision(1) << 100 * r.coverage << " % of the seeding cross-section";
     r.failures.push_back(msg.str());
   }
   return r;
@@ -846,9 +1001,10 @@ std::string FibreCheckReport::describe() const {
       << mean_length * 1e3 << "); outside by > " << tolerance * 1e3 << " mm: " << points_outside << "/" << points
       << " points (max " << std::setprecision(2) << max_outside_distance * 1e3 << " mm); ends to patches max "
       << max_start_distance * 1e3 << " / " << max_end_distance * 1e3 << " mm; min fibre distance "
-      << std::setprecision(1) << min_pairwise_distance * 1e6 << " um; mid cross-section " << std::setprecision(1)
-      << cross_section_area * 1e4 << " cm^2, coverage " << 100 * coverage << " % within " << coverage_radius * 1e3
-      << " mm, max gap " << max_gap * 1e3 << " mm";
+      << std::setprecision(1) << min_pairwise_distance * 1e6 << " um; seeding cross-section " << cross_section_area * 1e4
+      << " cm^2 (field value " << std::setprecision(2) << section_level << ", " << std::setprecision(0)
+      << 100 * section_volume_fraction << " % of the volume from the origin), coverage " << std::setprecision(1)
+      << 100 * coverage << " % within " << coverage_radius * 1e3 << " mm, max gap " << max_gap * 1e3 << " mm";
   out << (failures.empty() ? "; checks passed" : "; FAILED:");
   for (const std::string& f : failures) out << " [" << f << "]";
   return out.str();
@@ -998,7 +1154,19 @@ AttachmentPatches findAttachmentPatches(const TriangleMesh& surface, const Trian
 FibreGenerationResult generateFibres(const TriangleMesh& surface, const TriangleMesh* origin_bone,
                                      const TriangleMesh* insertion_bone, const FibreGeneratorOptions& options) {
   requireClosed(surface);
-  return generateFibres(surface, findAttachmentPatches(surface, origin_bone, insertion_bone, options), options);
+  const AttachmentPatches patches = findAttachmentPatches(surface, origin_bone, insertion_bone, options);
+  FibreGenerationResult result = generateFibres(surface, patches, options);
+  // Not a failure: the fibres still run end to end along the muscle, but where they start or end is a guess.
+  for (const auto& [role, from_bone] : {std::pair{"origin", patches.origin_from_bone},
+                                        std::pair{"insertion", patches.insertion_from_bone}}) {
+    if (from_bone) continue;
+    std::string why;
+    for (const std::string& note : patches.notes)
+      if (note.rfind(role, 0) == 0) why += (why.empty() ? "" : "; ") + note;
+    result.warnings.push_back(std::string("no usable ") + role + " bone region (" + why + "): the " + role +
+                              " patch is the muscle's end along its principal axis");
+  }
+  return result;
 }
 
 FibreGenerationResult generateFibres(const TriangleMesh& surface, const AttachmentPatches& patches,
@@ -1019,86 +1187,28 @@ FibreGenerationResult generateFibres(const TriangleMesh& surface, const Attachme
                               " inside voxels lie in pieces not joining both patches and get no fibres");
   }
 
-  const CrossSection section = midCrossSection(field);
-  if (section.points.empty()) throw FibreGenerationError("the field has no mid cross-section (0.5 iso-surface)");
-  const double h = field.grid.h;
-  const double step = options.step_voxels * h;
-  const AlignedBox box = boundsOf(surface.vertices);
-  const int max_steps = static_cast<int>(4.0 * (box.max - box.min).norm() / step) + 10;
-  const TriangleMesh origin_surface = patchSurface(surface, patches.origin_vertices);
-  const TriangleMesh insertion_surface = patchSurface(surface, patches.insertion_vertices);
-  const SurfaceDistance origin_distance(origin_surface.vertices, origin_surface.triangles);
-  const SurfaceDistance insertion_distance(insertion_surface.vertices, insertion_surface.triangles);
-
-  // Seeds whose streamline misses a patch (it runs into the rim or a stagnation point) are excluded with their
-  // neighbourhood and the seeds are spread again.
-  std::vector<char> allowed(section.points.size(), 1);
-  const double spacing = std::sqrt(section.area / (M_PI * options.fibre_count));
-  for (int round = 0; round < 6; ++round) {
-    const std::vector<std::size_t> seeds = spreadSeeds(section, allowed, options.fibre_count);
-    std::vector<Polyline> fibres;
-    std::vector<std::size_t> failed, traced_seeds;
-    for (std::size_t seed : seeds) {
-      const Eigen::Vector3d start = section.points[seed];
-      std::vector<Eigen::Vector3d> back, forward;
-      const bool to_origin = traceStreamline(field, start, -1.0, 0, origin_distance, step, max_steps, back);
-      const bool to_insertion =
-          to_origin && traceStreamline(field, start, +1.0, 1, insertion_distance, step, max_steps, forward);
-      if (!to_origin || !to_insertion) {
-        failed.push_back(seed);
-        continue;
-      }
-      std::vector<Eigen::Vector3d> points;
-      for (auto it = back.rbegin(); it != back.rend(); ++it) points.push_back(*it);
-      points.push_back(start);
-      points.insert(points.end(), forward.begin(), forward.end());
-      // End exactly on the attachment: continue the last step until it meets the patch (distinct streamlines meet it
-      // at distinct points, unlike closest-point projection, which sends neighbours to the same patch vertex).
-      // If that exit is not on the patch (the last step ran along the surface), the streamline keeps its own end,
-      // which lies in a Dirichlet voxel next to the patch.
-      Eigen::Vector3d hit;
-      if (points.size() >= 2 && rayExit(surface, points[1], points[0], 3 * h, hit) &&
-          origin_distance.distance(hit) <= h) {
-        points.insert(points.begin(), hit);
-      }
-      if (points.size() >= 2 && rayExit(surface, points[points.size() - 2], points.back(), 3 * h, hit) &&
-          insertion_distance.distance(hit) <= h) {
-        points.push_back(hit);
-      }
-      fibres.push_back(resample(points, options.points_per_fibre));
-      traced_seeds.push_back(seed);
+  // The preferred cross-section first; the next ones only if it gives fewer fibres than asked for (its seeds' streamlines
+  // ran too close together or missed a patch in every reseeding round).
+  constexpr std::size_t kSeedSectionAttempts = 3;
+  const std::vector<CrossSection> sections = seedingCrossSections(field, options);
+  const StreamlineTracer tracer(field, surface, patches, options);
+  std::size_t used = 0;
+  for (std::size_t attempt = 0; attempt < std::min(sections.size(), kSeedSectionAttempts); ++attempt) {
+    TracedFibres traced = tracer.traceFrom(sections[attempt]);
+    if (attempt == 0 || traced.fibres.size() > result.fibres.size()) {
+      used = attempt;
+      result.fibres = std::move(traced.fibres);
+      result.failed_seeds = traced.failed_seeds;
+      result.merged_fibres = traced.merged_fibres;
+      result.reseed_rounds = traced.reseed_rounds;
     }
-    // Streamlines funnelled into a narrow tendon can come within micrometres of each other (and would coincide once
-    // written with finite precision): keep the first of such a pair, reseed near the other.
-    const double min_separation = options.min_separation;
-    std::vector<AlignedBox> boxes;
-    for (const Polyline& fibre : fibres) boxes.push_back(boundsOf(fibre));
-    std::vector<char> drop(fibres.size(), 0);
-    for (std::size_t a = 0; a < fibres.size(); ++a)
-      for (std::size_t b = a + 1; b < fibres.size(); ++b)
-        if (!drop[a] && !drop[b] &&
-            polylineDistance(fibres[a], fibres[b], boxes[a], boxes[b], min_separation) < min_separation) {
-          drop[b] = 1;
-        }
-    std::vector<Polyline> kept;
-    for (std::size_t i = 0; i < fibres.size(); ++i) {
-      if (drop[i]) {
-        failed.push_back(traced_seeds[i]);
-        ++result.merged_fibres;
-      } else {
-        kept.push_back(std::move(fibres[i]));
-      }
-    }
-    fibres.swap(kept);
-    if (failed.empty() || round == 5) {
-      result.fibres = std::move(fibres);
-      break;
-    }
-    result.failed_seeds += static_cast<int>(failed.size());
-    ++result.reseed_rounds;
-    for (std::size_t s = 0; s < section.points.size(); ++s)
-      for (std::size_t f : failed)
-        if ((section.points[s] - section.points[f]).norm() < 0.5 * spacing) allowed[s] = 0;
+    if (result.fibres.size() >= static_cast<std::size_t>(options.fibre_count)) break;
+  }
+  if (used > 0) {
+    std::ostringstream note;
+    note << std::fixed << std::setprecision(1) << "the largest cross-section (" << sections[0].area * 1e4
+         << " cm^2) gave fewer fibres than asked for: seeded on the one of " << sections[used].area * 1e4 << " cm^2";
+    result.warnings.push_back(note.str());
   }
   if (result.failed_seeds > 0) {
     result.warnings.push_back(std::to_string(result.failed_seeds - result.merged_fibres) + " seeds missed a patch and " +
@@ -1106,7 +1216,7 @@ FibreGenerationResult generateFibres(const TriangleMesh& surface, const Attachme
                               std::to_string(result.reseed_rounds) + " times");
   }
   if (result.fibres.empty()) throw FibreGenerationError("no streamline joined the two patches");
-  result.checks = runChecks(surface, patches, result.fibres, field, options);
+  result.checks = runChecks(surface, patches, result.fibres, field, sections[used], options);
   return result;
 }
 
@@ -1121,10 +1231,11 @@ FibreCheckReport checkFibres(const TriangleMesh& surface, const AttachmentPatche
     }
   }
   const Field field = solveField(surface, patches, effectiveVoxel(surface, options), options);
-  return runChecks(surface, patches, fibres, field, options);
+  return runChecks(surface, patches, fibres, field, seedingCrossSections(field, options).front(), options);
 }
 
-void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres, int decimals) {
+void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres, int decimals,
+                   const std::vector<std::string>& failed_checks) {
   if (decimals < 1 || decimals > 17) throw std::invalid_argument("saveFibresVtk: decimals must be in 1..17");
   std::size_t points = 0;
   for (std::size_t i = 0; i < fibres.size(); ++i) {
@@ -1134,7 +1245,15 @@ void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres,
   }
   std::ofstream out(path);
   if (!out) throw std::runtime_error(path + ": cannot open for writing: " + std::strerror(errno));
-  out << "# vtk DataFile Version 3.0\nmuscle fibres, origin to insertion (metres)\nASCII\nDATASET POLYDATA\n";
+  std::string title = "muscle fibres, origin to insertion (metres)";
+  if (!failed_checks.empty()) {
+    title += std::string("; ") + kFibreChecksFailedMark;
+    for (std::size_t i = 0; i < failed_checks.size(); ++i) title += (i ? "; " : "") + failed_checks[i];
+    constexpr std::size_t kLegacyVtkTitleLimit = 255;  // the format's limit; the rest of the list is cut
+    std::replace(title.begin(), title.end(), '\n', ' ');
+    if (title.size() > kLegacyVtkTitleLimit) title = title.substr(0, kLegacyVtkTitleLimit - 3) + "...";
+  }
+  out << "# vtk DataFile Version 3.0\n" << title << "\nASCII\nDATASET POLYDATA\n";
   out << "POINTS " << points << " double\n";
   // Fixed decimals with trailing zeros dropped: short, exact to the chosen precision, readable by any VTK reader.
   auto number = [decimals](double value) {

@@ -1,6 +1,7 @@
 // Fibres for any closed muscle surface, after Choi & Blemker 2013: a harmonic (Laplace) field is solved on the voxels
 // inside the surface, 0 on the origin patch and 1 on the insertion patch, zero flux elsewhere; fibres are streamlines
-// of its gradient, seeded evenly over the field's 0.5 iso-surface (the mid cross-section), oriented origin -> insertion.
+// of its gradient, seeded evenly over one of the field's iso-surfaces (a cross-section of the muscle: by default its
+// largest, in the belly), oriented origin -> insertion.
 #pragma once
 
 #include "muscle_deformation/core/geometry.hpp"
@@ -17,8 +18,18 @@ class FibreGenerationError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// Which iso-surface of the field the seeds are spread over (and the coverage check measures).
+enum class SeedSection {
+  // The largest of the iso-surfaces at 10, 15, ... 90 % of the muscle's volume from the origin: the belly. A thin
+  // tendon carries most of the field's drop (like a narrow conductor), so elsewhere its mid-value falls there.
+  largest,
+  // The field's 0.5 iso-surface: how the bundled fibres (data/fibres/) were made.
+  mid_value,
+};
+
 struct FibreGeneratorOptions {
   int fibre_count = 64;
+  SeedSection seed_section = SeedSection::largest;
   double voxel_size = 0.002;        // m: the coarsest voxel edge used
   long min_inside_voxels = 50000;   // small muscles get finer voxels until their interior holds this many (0 = off)
   long max_grid_cells = 12000000;   // refuse grids larger than this (memory), rather than thrash
@@ -63,7 +74,9 @@ struct FibreCheckReport {
   int bad_starts = 0, bad_ends = 0; // fibres not starting near the origin patch / not ending near the insertion patch
   double max_start_distance = 0, max_end_distance = 0;  // to the respective patch
   double min_pairwise_distance = 0; // smallest distance between two different fibres (segment to segment)
-  double cross_section_area = 0;    // area of the field's 0.5 iso-surface
+  double cross_section_area = 0;    // area of the seeding cross-section (the field's iso-surface at section_level)
+  double section_level = 0;         // field value of the seeding cross-section (0 origin, 1 insertion)
+  double section_volume_fraction = 0;  // share of the muscle's volume between the origin and that cross-section
   double coverage_radius = 0;       // 1.5 * sqrt(area / (pi * fibres)): a disc per fibre, with overlap
   double coverage = 0;              // fraction of the cross-section within coverage_radius of a fibre
   double max_gap = 0;               // largest distance of a cross-section point to its nearest fibre
@@ -107,7 +120,9 @@ double windingNumber(const TriangleMesh& surface, const Eigen::Vector3d& p);
 
 // ASCII legacy VTK polylines with coordinates rounded to `decimals` places (5 = 10 um in metres, 1/50 of the finest
 // voxel used for the bundled muscles): the fibre files are committed, and savePolylinesVtk's 17 significant digits
-// would more than double their size for no useful precision.
-void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres, int decimals = 5);
+// would more than double their size for no useful precision. Checks that failed are written into the file's title
+// line (see recordedFibreCheckFailures in io/mesh_io.hpp), so that whoever loads the file hears of them.
+void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres, int decimals = 5,
+                   const std::vector<std::string>& failed_checks = {});
 
 }  // namespace muscle_deformation

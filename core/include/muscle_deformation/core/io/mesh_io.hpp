@@ -36,6 +36,12 @@ TriangleMesh loadClosedSurface(const std::string& path, double scale_to_metres =
 // Degenerate lines (fewer than 2 points) are returned as they are; buildMassSpringSystem skips them with a warning.
 std::vector<Polyline> loadPolylines(const std::string& path, double scale_to_metres = 1.0);
 
+// Fibre files say in their title line (the second line of a legacy VTK file) when their checks failed as they were
+// generated: "...; fibre checks failed: 13 fibres instead of 64". The failures a file records, or "" when it records
+// none (checks passed, or a file made elsewhere). Never throws: a file that cannot be read records nothing.
+inline constexpr char kFibreChecksFailedMark[] = "fibre checks failed: ";
+std::string recordedFibreCheckFailures(const std::string& path);
+
 // Writers used by tools and tests: binary legacy VTK POLYDATA with LINES (coordinates read back exactly), binary STL.
 void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines);
 void saveTriangleMeshStl(const std::string& path, const TriangleMesh& mesh);
