@@ -587,3 +587,36 @@ TEST(Scene, RepairSurfacesKeyIsABoolean) {
   EXPECT_CONTAINS(message, "line 3");
   EXPECT_CONTAINS(message, "'repair_surfaces' must be true or false");
 }
+
+// A scene may replace a URDF bone mesh that is not closed by a closed copy (bone_surfaces, as prepare_scene writes it):
+// the copy is loaded where the URDF places the mesh. A copy for a mesh the URDF does not name means the scene was made
+// for another skeleton, and is refused.
+TEST(Scene, BoneSurfacesStandInForTheMeshTheyNameAndOneTheUrdfDoesNotNameIsRefused) {
+  const std::string cube = (fs::temp_directory_path() / "md_scene_test_stand_in.stl").string();
+  md::saveTriangleMeshStl(cube, md::testing::unitCube());
+  const std::string patella = "package://muscle_deformation/data/meshes/bones/patella_r.stl";
+  const std::string scene_file = writeTemp("bone_surfaces.yaml",
+      "urdf: " + kBundledUrdf + "\nframe: pelvis\nbone_surfaces:\n  - mesh: " + patella + "\n    surface: " + cube +
+      "\nmuscles:\n  - {name: a, surface: a.stl, fibres: a.vtk, origin_bone: pelvis, insertion_bone: femur_r}\n");
+  md::SceneDescription description = md::loadSceneDescription(scene_file);
+  ASSERT_EQ(description.bone_surfaces.size(), 1u);
+  EXPECT_EQ(description.bone_surfaces.at(patella), cube);
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kBundledUrdf);
+  const md::UriResolver resolve = md::makeUriResolver({{"muscle_deformation", kPackage}}, kPackage);
+
+  const std::vector<md::Bone> bones = md::loadBones(description, skeleton, resolve);
+  const auto bone = std::find_if(bones.begin(), bones.end(), [](const md::Bone& b) { return b.name == "patella_r"; });
+  ASSERT_NE(bone, bones.end());
+  ASSERT_EQ(bone->surface.triangleCount(), 12);
+  // Link frames are parallel to the pelvis at zero: the unit cube lands at the patella link's origin.
+  const Eigen::Vector3d origin = skeleton.linkPoses({}).at("patella_r").translation();
+  const md::AlignedBox placed = md::boundsOf(bone->surface.vertices);
+  EXPECT_LT((placed.min - origin).norm(), 1e-6);
+  EXPECT_LT((placed.max - origin - Eigen::Vector3d::Ones()).norm(), 1e-6);
+
+  description.bone_surfaces = {{"package://muscle_deformation/data/meshes/bones/ulna.stl", cube}};
+  const std::string message =
+      md::testing::errorMessageOf<md::SceneError>([&] { md::loadBones(description, skeleton, resolve); });
+  EXPECT_CONTAINS(message, "bone_surfaces replaces mesh 'package://muscle_deformation/data/meshes/bones/ulna.stl'");
+  EXPECT_CONTAINS(message, "which no link of the URDF");
+}

@@ -144,6 +144,17 @@ SceneDescription loadSceneDescription(const std::string& yaml_path) {
       throw SceneError(where(yaml_path, repair.Mark()) + ": 'repair_surfaces' must be true or false");
     }
   }
+  if (const YAML::Node stand_ins = root["bone_surfaces"]; stand_ins.IsDefined() && !stand_ins.IsNull()) {
+    if (!stand_ins.IsSequence())
+      throw SceneError(where(yaml_path, stand_ins.Mark()) + ": 'bone_surfaces' must be a list of {mesh, surface}");
+    for (std::size_t i = 0; i < stand_ins.size(); ++i) {
+      const std::string what = "bone_surfaces entry #" + std::to_string(i + 1);
+      if (!stand_ins[i].IsMap()) throw SceneError(where(yaml_path, stand_ins[i].Mark()) + ": " + what + " must be a map");
+      const std::string mesh = requiredString(stand_ins[i], "mesh", yaml_path, what);
+      if (!scene.bone_surfaces.emplace(mesh, requiredString(stand_ins[i], "surface", yaml_path, what)).second)
+        throw SceneError(where(yaml_path, stand_ins[i].Mark()) + ": mesh '" + mesh + "' is replaced twice");
+    }
+  }
   const YAML::Node muscles = root["muscles"];
   if (!muscles.IsDefined() || muscles.IsNull()) {
     throw SceneError(where(yaml_path, root.Mark()) + ": the scene has no 'muscles' key");
@@ -274,10 +285,38 @@ std::vector<Bone> bonesAtRest(const Skeleton& skeleton, const UriResolver& resol
   return bones;
 }
 
+// The URDF's mesh resolver with the scene's bone_surfaces in place of the meshes they stand in for. A stand-in for a
+// mesh the URDF does not name is an error: the scene was made for another skeleton, and the bone it was meant to mend
+// would be loaded broken.
+UriResolver withBoneSurfaces(const SceneDescription& scene, const Skeleton& skeleton, const UriResolver& resolve_mesh) {
+  if (scene.bone_surfaces.empty()) return resolve_mesh;
+  std::set<std::string> named;
+  for (const SkeletonLink& link : skeleton.links())
+    for (const CollisionMeshRef& ref : link.collision_meshes) named.insert(ref.uri);
+  std::map<std::string, std::string> files;
+  for (const auto& [mesh, surface] : scene.bone_surfaces) {
+    if (!named.count(mesh))
+      throw SceneError(scene.path + ": bone_surfaces replaces mesh '" + mesh + "', which no link of the URDF (" +
+                       skeleton.source() + ") names; is it the skeleton the scene was made for?");
+    files[mesh] = resolveScenePath(scene, surface, resolve_mesh);
+  }
+  return [files = std::move(files), resolve_mesh](const std::string& uri) {
+    const auto stand_in = files.find(uri);
+    if (stand_in == files.end()) return resolve_mesh(uri);
+    if (!fs::is_regular_file(stand_in->second))
+      throw SceneError("'" + stand_in->second + "', the closed stand-in for '" + uri + "', is not a readable file");
+    return stand_in->second;
+  };
+}
+
 }  // namespace
 
 std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve_mesh, const std::string& frame) {
   return bonesAtRest(skeleton, resolve_mesh, restPosesInFrame(skeleton, frame));
+}
+
+std::vector<Bone> loadBones(const SceneDescription& scene, const Skeleton& skeleton, const UriResolver& resolve_mesh) {
+  return loadBones(skeleton, withBoneSurfaces(scene, skeleton, resolve_mesh), scene.frame);
 }
 
 Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
@@ -311,7 +350,7 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     throw SceneError(description.path + ": " + e.what());
   }
   scene.muscle_descriptions = selectMuscles(description, selection);
-  scene.bones = bonesAtRest(skeleton, resolve_mesh, scene.rest_link_poses);
+  scene.bones = bonesAtRest(skeleton, withBoneSurfaces(description, skeleton, resolve_mesh), scene.rest_link_poses);
   // Bones are the links with <collision> meshes: without one, a muscle's attachments follow nothing and the muscles
   // never move, which must not pass for a working scene.
   if (scene.bones.empty()) {
@@ -364,6 +403,9 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     }
     muscle.fibres = loadPolylines(fibre_path);
     if (muscle.fibres.empty()) throw SceneError(fibre_path + ": no fibres in the file (muscle '" + m.name + "')");
+    if (const std::string failed = recordedFibreCheckFailures(fibre_path); !failed.empty())
+      scene.warnings.push_back("muscle '" + m.name + "': its fibres failed their checks when they were generated (" +
+                               failed + "; " + fibre_path + "): the muscle is simulated on them as they are");
     const FibreExcursion excursion = fibreExcursion(muscle);
     if (excursion.max_outside_m > kFibreOutsideToleranceM) {
       std::ostringstream message;

@@ -45,6 +45,11 @@ struct SceneDescription {
   // `repair_surfaces:` key (default false): muscle surfaces that are not closed are repaired on loading
   // (io/surface_repair.hpp) instead of refused; Scene::repairs says what changed.
   bool repair_surfaces = false;
+  // `bone_surfaces:` key: closed stand-ins for URDF collision meshes that are not closed (prepare_scene writes them):
+  // the mesh as the URDF names it (its filename attribute, exactly) -> the file to load instead (the same forms as
+  // MuscleDescription::surface_file), in the units and frame of the mesh it stands in for, so that the URDF's scale
+  // and origin apply to it as they did to the original.
+  std::map<std::string, std::string> bone_surfaces;
 };
 
 // Reads the YAML; every missing or malformed key is a SceneError naming the file and the line.
@@ -66,6 +71,9 @@ struct Scene {
   // One line per muscle surface repaired on loading (SceneDescription::repair_surfaces), naming muscle, file and
   // changes; for the caller to show as warnings.
   std::vector<std::string> repairs;
+  // One line per muscle whose fibre file records that its checks failed when it was generated
+  // (recordedFibreCheckFailures), naming the muscle, the file and the failures; for the caller to show as warnings.
+  std::vector<std::string> warnings;
 };
 
 // The links the scene names (its `frame`, every muscle's origin_bone and insertion_bone, of every muscle, selected or
@@ -73,11 +81,13 @@ struct Scene {
 // and the skeleton fit.
 std::vector<std::string> linksMissingFrom(const SceneDescription& description, const Skeleton& skeleton);
 
-// Loads the selected muscles and every bone with collision meshes. Relative scene paths start at the scene file's
-// folder; package:// and file:// URIs, in the scene and in the URDF, go through `resolve_mesh`. Throws SceneError (or
+// Loads the selected muscles and every bone with collision meshes (a mesh the scene's bone_surfaces replaces from the
+// file it names). Relative scene paths start at the scene file's folder; package:// and file:// URIs, in the scene
+// and in the URDF, go through `resolve_mesh`. Throws SceneError (or
 // LoadError from the mesh loaders, naming the file) on any missing or broken input: among others links the scene names
 // that the URDF lacks (all of them listed), a scene without bones (no link with a <collision> mesh), a muscle attached
-// to a link without one, and fibres further than kFibreOutsideToleranceM outside their muscle's surface.
+// to a link without one, a bone_surfaces entry for a mesh no link of the URDF names, and fibres further than
+// kFibreOutsideToleranceM outside their muscle's surface.
 Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, const UriResolver& resolve_mesh,
                 const std::vector<std::string>& selection = {});
 
@@ -104,6 +114,8 @@ std::string resolveScenePath(const SceneDescription& scene, const std::string& p
 // Only the bones of loadScene (one per link with collision meshes, ids = index, rest pose in the link `frame` of the
 // zero configuration), e.g. for tools that run before fibre files exist. Throws SceneError for an unknown frame.
 std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve_mesh, const std::string& frame);
+// The same for a scene: in its frame, with its bone_surfaces in place of the meshes they replace.
+std::vector<Bone> loadBones(const SceneDescription& scene, const Skeleton& skeleton, const UriResolver& resolve_mesh);
 
 // The pose of the bones (rest -> current, scene frame) for link poses given in the scene frame, e.g. from tf or
 // from Skeleton::linkPoses: T_bone = T_link(current) * T_link(rest)^-1.
