@@ -1,0 +1,290 @@
+// A scene directory from segmented muscle surfaces and a skeleton URDF: repair, bone checks, fibres, measurements.
+#include "muscle_deformation/preprocessing/scene_preparation.hpp"
+
+#include "muscle_deformation/core/io/mesh_io.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/preprocessing/scene_directory.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <map>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+namespace muscle_deformation {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// Muscle colours, apart from each other and from the bones' ivory, in the order the muscles are given.
+constexpr std::array<std::array<float, 4>, 8> kMusclePalette = {{{0.85f, 0.20f, 0.20f, 1.0f},
+                                                                 {0.20f, 0.45f, 0.85f, 1.0f},
+                                                                 {0.25f, 0.70f, 0.30f, 1.0f},
+                                                                 {0.85f, 0.50f, 0.10f, 1.0f},
+                                                                 {0.60f, 0.30f, 0.75f, 1.0f},
+                                                                 {0.10f, 0.70f, 0.70f, 1.0f},
+                                                                 {0.80f, 0.30f, 0.55f, 1.0f},
+                                                                 {0.55f, 0.55f, 0.15f, 1.0f}}};
+
+// Names become file names and YAML keys: letters, digits, '_', '-', '.', not starting with '.'.
+bool isUsableName(const std::string& name) {
+  if (name.empty() || name.front() == '.') return false;
+  return std::all_of(name.begin(), name.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.';
+  });
+}
+
+bool isPlainRelativePath(const std::string& uri) {
+  return uri.find("://") == std::string::npos && !fs::path(uri).is_absolute();
+}
+
+std::string listOf(const std::vector<std::string>& names) {
+  std::string out;
+  for (const std::string& name : names) out += (out.empty() ? "'" : ", '") + name + "'";
+  return out.empty() ? "none" : out;
+}
+
+
+// Reads every collision mesh of the URDF as the node will, and repairs the ones that are not closed into the scene
+// directory (meshes/bones/<link>_<file name>.stl, in the mesh's own units and frame).
+std::vector<BoneMeshCheck> checkBoneMeshes(const Skeleton& skeleton, const UriResolver& resolve,
+                                           const std::string& out_dir) {
+  std::vector<BoneMeshCheck> checks;
+  for (const SkeletonLink& link : skeleton.links()) {
+    for (const CollisionMeshRef& ref : link.collision_meshes) {
+      BoneMeshCheck check;
+      check.link = link.name;
+      check.uri = ref.uri;
+      if (isPlainRelativePath(ref.uri))
+        check.problem = "a relative path: the node reads the URDF from robot_description, which has no folder to "
+                        "start it from; write it as an absolute path, a file:// or a package:// URI";
+      TriangleMesh mesh;
+      try {
+        check.file = resolve(ref.uri);
+        mesh = loadTriangleMesh(check.file);
+      } catch (const std::exception& e) {
+        throw SceneError(skeleton.source() + ": link '" + link.name + "': collision mesh '" + ref.uri + "': " + e.what());
+      }
+      check.triangles = static_cast<int>(mesh.triangleCount());
+      try {
+        const TriangleMesh closed = closedOrRepaired(mesh, check.file, check.repair, &check.defects);
+        if (!check.defects.empty()) {
+          check.stand_in = "meshes/bones/" + link.name + "_" + fs::path(check.file).stem().string() + ".stl";
+          saveTriangleMeshStl((fs::path(out_dir) / check.stand_in).string(), closed);
+        }
+      } catch (const LoadError& e) {
+        check.problem += (check.problem.empty() ? "" : "; ") + std::string(e.what());
+      }
+      checks.push_back(std::move(check));
+    }
+  }
+  return checks;
+}
+
+// The scene as the node will read it, before its muscles are known: the frame and the bone stand-ins.
+SceneDescription sceneSkeletonPart(const std::string& out_dir, const std::string& frame,
+                                   const std::vector<BoneMeshCheck>& bone_meshes) {
+  SceneDescription scene;
+  scene.path = (fs::path(out_dir) / kSceneFileName).string();
+  scene.folder = out_dir;
+  scene.frame = frame;
+  for (const BoneMeshCheck& check : bone_meshes)
+    if (!check.stand_in.empty()) scene.bone_surfaces[check.uri] = check.stand_in;
+  return scene;
+}
+
+// Why a link cannot be a muscle's origin or insertion, or "" when it can.
+std::string attachmentProblem(const Skeleton& skeleton, const std::vector<Bone>& bones, const std::string& link,
+                              const char* role) {
+  std::vector<std::string> bone_names;
+  for (const Bone& bone : bones) bone_names.push_back(bone.name);
+  if (!skeleton.link(link))
+    return std::string(role) + " link '" + link + "' is not a link of the URDF (links with bones: " +
+           listOf(bone_names) + ")";
+  if (std::find(bone_names.begin(), bone_names.end(), link) == bone_names.end())
+    return std::string(role) + " link '" + link + "' has no <collision> mesh, so it is no bone the node can attach " +
+           "the muscle to (links with bones: " + listOf(bone_names) + ")";
+  return "";
+}
+
+// The muscle's surface in metres, closed: as read, or repaired (LoadError when it cannot be), written to the scene.
+void readSurface(PreparedMuscle& muscle, double scale, const std::string& out_dir) {
+  const TriangleMesh closed = closedOrRepaired(loadTriangleMesh(muscle.source.mesh_file, scale),
+                                               muscle.source.mesh_file, muscle.repair, &muscle.defects);
+  // The node reads the written file: the fibres are made on it (float coordinates, as STL stores them).
+  muscle.surface_file = "meshes/muscles/" + muscle.source.name + ".stl";
+  const std::string written = (fs::path(out_dir) / muscle.surface_file).string();
+  saveTriangleMeshStl(written, closed);
+  muscle.surface = loadClosedSurface(written);
+  muscle.volume_m3 = std::abs(enclosedVolume(muscle.surface));
+}
+
+const TriangleMesh* boneSurface(const std::vector<Bone>& bones, const std::string& name) {
+  for (const Bone& bone : bones)
+    if (bone.name == name) return &bone.surface;
+  return nullptr;
+}
+
+// Muscle vertices inside each (closed) bone at rest, with the deepest one's depth.
+void measureOverlaps(std::vector<PreparedMuscle>& muscles, const std::vector<Bone>& bones,
+                     const std::vector<BoneMeshCheck>& bone_meshes) {
+  for (const Bone& bone : bones) {
+    const bool usable = std::none_of(bone_meshes.begin(), bone_meshes.end(), [&](const BoneMeshCheck& check) {
+      return check.link == bone.name && !check.problem.empty() && !check.defects.empty();
+    });
+    if (!usable) continue;  // an open surface has no inside
+    const ClosedSurfaceInsideTest inside(bone.surface, bone.name);
+    for (PreparedMuscle& muscle : muscles) {
+      if (!muscle.prepared()) continue;
+      BoneOverlap overlap;
+      overlap.bone = bone.name;
+      for (Eigen::Index v = 0; v < muscle.surface.vertexCount(); ++v) {
+        const Eigen::Vector3d p = muscle.surface.vertices.col(v);
+        const bool in_box = (p.array() >= inside.bounds().min.array()).all() &&
+                            (p.array() <= inside.bounds().max.array()).all();
+        if (!in_box || !inside.contains(p)) continue;
+        ++overlap.vertices_inside;
+        overlap.max_depth_m = std::max(overlap.max_depth_m, inside.distanceToSurface(p));
+      }
+      if (overlap.vertices_inside == 0) continue;
+      overlap.share = static_cast<double>(overlap.vertices_inside) / static_cast<double>(muscle.surface.vertexCount());
+      muscle.overlaps.push_back(overlap);
+    }
+  }
+  for (PreparedMuscle& muscle : muscles)
+    std::sort(muscle.overlaps.begin(), muscle.overlaps.end(),
+              [](const BoneOverlap& a, const BoneOverlap& b) { return a.max_depth_m > b.max_depth_m; });
+}
+
+// The attachments the node will make with `settings` (fixed particles per bone, tendons), from the model builder.
+void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings) {
+  std::vector<Muscle> muscles;
+  for (const PreparedMuscle& prepared : preparation.muscles) {
+    if (!prepared.prepared()) continue;
+    muscles.push_back(Muscle{prepared.source.name, prepared.surface, prepared.fibres.fibres, prepared.source.origin_link,
+                             prepared.source.insertion_link});
+  }
+  if (muscles.empty()) return;
+  try {
+    ModelBuildReport report;
+    buildMassSpringSystem(muscles, preparation.bones, settings, &report);
+    for (PreparedMuscle& prepared : preparation.muscles)
+      for (const MuscleBuildSummary& summary : report.muscles)
+        if (summary.name == prepared.source.name) prepared.attachments = summary;
+    preparation.warnings = report.warnings;
+  } catch (const std::exception& e) {
+    preparation.model_problem = e.what();
+  }
+}
+
+}  // namespace
+
+MuscleSource parseMuscleSource(const std::string& text) {
+  const std::size_t first = text.find(':');
+  const std::size_t last = text.rfind(':');
+  const std::size_t before_last = last == std::string::npos || last == 0 ? std::string::npos : text.rfind(':', last - 1);
+  if (first == std::string::npos || before_last == std::string::npos || before_last <= first)
+    throw std::invalid_argument("'" + text + "' is not NAME:MESH:ORIGIN_LINK:INSERTION_LINK");
+  MuscleSource source{text.substr(0, first), text.substr(first + 1, before_last - first - 1),
+                      text.substr(before_last + 1, last - before_last - 1), text.substr(last + 1)};
+  for (const auto& [field, value] : {std::pair{"NAME", &source.name}, std::pair{"MESH", &source.mesh_file},
+                                     std::pair{"ORIGIN_LINK", &source.origin_link},
+                                     std::pair{"INSERTION_LINK", &source.insertion_link}})
+    if (value->empty()) throw std::invalid_argument("'" + text + "': " + field + " is empty");
+  return source;
+}
+
+bool ScenePreparation::bonesUsable() const {
+  return std::all_of(bone_meshes.begin(), bone_meshes.end(),
+                     [](const BoneMeshCheck& check) { return check.problem.empty(); });
+}
+
+int ScenePreparation::preparedCount() const {
+  return static_cast<int>(std::count_if(muscles.begin(), muscles.end(),
+                                        [](const PreparedMuscle& m) { return m.prepared(); }));
+}
+
+ScenePreparation prepareScene(const ScenePreparationRequest& request,
+                              const std::function<void(const std::string&)>& progress) {
+  const auto say = [&](const std::string& line) {
+    if (progress) progress(line);
+  };
+  if (!(request.scale_to_metres > 0) || !std::isfinite(request.scale_to_metres))
+    throw std::invalid_argument("the scale to metres must be a positive number");
+  if (request.out_dir.empty()) throw std::invalid_argument("no output directory given");
+  ScenePreparation preparation;
+  preparation.out_dir = fs::absolute(request.out_dir).lexically_normal().string();
+  preparation.command_line = request.command_line;
+  preparation.urdf_file = fs::absolute(request.urdf_file).lexically_normal().string();
+  preparation.scale_to_metres = request.scale_to_metres;
+  preparation.fibres_asked = request.fibres.fibre_count;
+  for (const char* folder : {"meshes/muscles", "meshes/bones", "fibres"})
+    fs::create_directories(fs::path(preparation.out_dir) / folder);
+
+  const Skeleton skeleton = Skeleton::fromUrdfFile(request.urdf_file);
+  preparation.frame = request.frame.empty() ? skeleton.rootLink() : request.frame;
+  if (!skeleton.link(preparation.frame))
+    throw SceneError(request.urdf_file + ": the frame '" + preparation.frame + "' is not a link of the URDF");
+  preparation.bone_meshes = checkBoneMeshes(skeleton, request.resolve_uri, preparation.out_dir);
+  for (const BoneMeshCheck& check : preparation.bone_meshes) {
+    if (!check.defects.empty())
+      say("bone '" + check.link + "' " + check.uri + ": " + check.defects +
+          (check.stand_in.empty() ? "; NOT repaired: " + check.problem
+                                  : "; repaired into " + check.stand_in + ": " + check.repair.describe()));
+    else if (!check.problem.empty())
+      say("bone '" + check.link + "' " + check.uri + ": " + check.problem);
+  }
+  preparation.bones = loadBones(sceneSkeletonPart(preparation.out_dir, preparation.frame, preparation.bone_meshes),
+                                skeleton, request.resolve_uri);
+  if (preparation.bones.empty())
+    throw SceneError(request.urdf_file + ": no link has a <collision> mesh, so there are no bones to attach muscles "
+                     "to (bones are the links' collision meshes)");
+
+  std::set<std::string> names;
+  for (std::size_t i = 0; i < request.muscles.size(); ++i) {
+    PreparedMuscle muscle;
+    muscle.source = request.muscles[i];
+    muscle.colour = kMusclePalette[i % kMusclePalette.size()];
+    const std::string& name = muscle.source.name;
+    try {
+      if (!isUsableName(name))
+        muscle.refusal = "the name '" + name + "' must be letters, digits, '_', '-' or '.' (it names its files)";
+      else if (!names.insert(name).second)
+        muscle.refusal = "the name '" + name + "' is given to two muscles";
+      for (const auto& [link, role] : {std::pair{&muscle.source.origin_link, "origin"},
+                                       std::pair{&muscle.source.insertion_link, "insertion"}})
+        if (muscle.refusal.empty()) muscle.refusal = attachmentProblem(skeleton, preparation.bones, *link, role);
+      if (muscle.refusal.empty()) readSurface(muscle, request.scale_to_metres, preparation.out_dir);
+      if (muscle.refusal.empty()) {
+        muscle.fibres = generateFibres(muscle.surface, boneSurface(preparation.bones, muscle.source.origin_link),
+                                       boneSurface(preparation.bones, muscle.source.insertion_link), request.fibres);
+        muscle.fibre_file = "fibres/" + name + ".vtk";
+        saveFibresVtk((fs::path(preparation.out_dir) / muscle.fibre_file).string(), muscle.fibres.fibres, 5,
+                      muscle.fibres.checks.failures);
+      }
+    } catch (const std::exception& e) {  // LoadError, FibreGenerationError: this muscle only
+      muscle.refusal = e.what();
+    }
+    if (muscle.prepared()) {
+      std::string line = "muscle '" + name + "': ";
+      if (muscle.repair.changed()) line += "repaired (" + muscle.repair.describe() + "); ";
+      line += std::to_string(muscle.fibres.fibres.size()) + " fibres, " +
+              (muscle.fibres.checks.passed() ? "checks passed" : "checks FAILED");
+      say(line);
+    } else {
+      say("muscle '" + name + "' NOT prepared: " + muscle.refusal);
+    }
+    preparation.muscles.push_back(std::move(muscle));
+  }
+  measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
+  measureAttachments(preparation, request.model);
+  writeSceneDirectory(preparation);
+  return preparation;
+}
+
+}  // namespace muscle_deformation
