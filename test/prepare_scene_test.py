@@ -1,0 +1,147 @@
+#!/usr/bin/env python3
+"""prepare_scene end to end, as a user runs it: a skeleton URDF whose bone meshes are in millimetres (one with a hole),
+a muscle segmented in millimetres with the defects segmentations have (a non-manifold edge, degenerate and duplicated
+triangles) and a muscle that cannot be repaired. The tool must prepare the first, refuse the second saying why, and
+write a scene directory whose paths are relative to it. Small and synthetic, so that it runs in seconds."""
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+import unittest
+
+PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TOOL = os.environ.get("PREPARE_SCENE", os.path.join(PACKAGE, ".ws", "devel", "lib", "muscle_deformation",
+                                                   "prepare_scene"))
+
+
+def write_obj(path, vertices, triangles):
+    with open(path, "w") as out:
+        for v in vertices:
+            out.write("v %.6f %.6f %.6f\n" % tuple(v))
+        for t in triangles:
+            out.write("f %d %d %d\n" % tuple(i + 1 for i in t))
+
+
+def box(lo, hi):
+    """Closed box, outward winding (vertex i: bit 0 = x, bit 1 = y, bit 2 = z at the upper bound)."""
+    vertices = [(hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]) for i in range(8)]
+    triangles = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
+                 (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)]
+    return vertices, triangles
+
+
+def ellipsoid(centre, radii, rings=24, segments=32):
+    """Closed UV ellipsoid, outward winding: poles along z."""
+    vertices = [(centre[0], centre[1], centre[2] - radii[2])]
+    for r in range(1, rings):
+        polar = math.pi * r / rings
+        for s in range(segments):
+            azimuth = 2 * math.pi * s / segments
+            vertices.append((centre[0] + radii[0] * math.sin(polar) * math.cos(azimuth),
+                             centre[1] + radii[1] * math.sin(polar) * math.sin(azimuth),
+                             centre[2] - radii[2] * math.cos(polar)))
+    vertices.append((centre[0], centre[1], centre[2] + radii[2]))
+    top = len(vertices) - 1
+
+    def at(ring, s):
+        return 1 + ring * segments + s % segments
+
+    triangles = [(0, at(0, s + 1), at(0, s)) for s in range(segments)]
+    for r in range(rings - 2):
+        for s in range(segments):
+            triangles += [(at(r, s), at(r, s + 1), at(r + 1, s + 1)), (at(r, s), at(r + 1, s + 1), at(r + 1, s))]
+    triangles += [(top, at(rings - 2, s), at(rings - 2, s + 1)) for s in range(segments)]
+    return vertices, triangles
+
+
+URDF = """<?xml version="1.0"?>
+<robot name="small_hip">
+  <link name="pelvis">
+    <collision><geometry><mesh filename="file://{dir}/pelvis_mm.obj" scale="0.001 0.001 0.001"/></geometry></collision>
+  </link>
+  <joint name="hip_flexion_r" type="revolute">
+    <parent link="pelvis"/><child link="femur_r"/>
+    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="1" velocity="1"/>
+  </joint>
+  <link name="femur_r">
+    <collision><geometry><mesh filename="file://{dir}/femur_mm.obj" scale="0.001 0.001 0.001"/></geometry></collision>
+  </link>
+</robot>
+"""
+
+
+class PrepareSceneEndToEnd(unittest.TestCase):
+    def setUp(self):
+        self.raw = tempfile.mkdtemp(prefix="md_prepare_scene_")
+        self.out = os.path.join(self.raw, "my scene")  # a space: paths are quoted
+        write_obj(os.path.join(self.raw, "pelvis_mm.obj"), *box((-40, -40, 100), (40, 40, 130)))
+        femur_vertices, femur_triangles = box((-40, -40, -30), (40, 40, 0))
+        write_obj(os.path.join(self.raw, "femur_mm.obj"), femur_vertices, femur_triangles[:-1])  # a hole
+        with open(os.path.join(self.raw, "hip.urdf"), "w") as out:
+            out.write(URDF.format(dir=self.raw))
+        vertices, triangles = ellipsoid((0, 0, 50), (12, 12, 50))
+        a, b = triangles[40][0], triangles[40][1]
+        vertices.append(tuple(1.3 * c for c in vertices[a]))  # the tip of a fin on edge a-b: a non-manifold edge
+        triangles += [(a, b, len(vertices) - 1), (a, a, b), (b, b, a), triangles[70]]  # 2 degenerate, 1 duplicated
+        write_obj(os.path.join(self.raw, "belly_mm.obj"), vertices, triangles)
+        shutil.copy(os.path.join(PACKAGE, "test", "data", "nonmanifold.obj"), os.path.join(self.raw, "broken.obj"))
+
+    def tearDown(self):
+        shutil.rmtree(self.raw)
+
+    def prepare(self, *muscles):
+        command = [TOOL, "--urdf", os.path.join(self.raw, "hip.urdf"), "--out", self.out, "--scale", "0.001",
+                   "--fibres", "16", "--min-voxels", "20000"]
+        for muscle in muscles:
+            command += ["--muscle", muscle]
+        return subprocess.run(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True,
+                              timeout=120)
+
+    def read(self, name):
+        with open(os.path.join(self.out, name)) as f:
+            return f.read()
+
+    def test_a_defective_muscle_is_repaired_and_one_that_cannot_be_is_refused_after_the_others_are_prepared(self):
+        run = self.prepare("broken:%s/broken.obj:pelvis:femur_r" % self.raw,
+                           "belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw)
+        self.assertEqual(run.returncode, 1, run.stdout + run.stderr)
+        self.assertIn("muscle 'broken' NOT prepared", run.stdout)
+        self.assertIn("the repair could not make it one", run.stdout)
+        self.assertIn("muscle 'belly': repaired", run.stdout)
+        self.assertIn("1 of 2 muscles prepared", run.stdout)
+        for name in ("scene.yaml", "report.md", "view.rviz", "meshes/muscles/belly.stl", "fibres/belly.vtk"):
+            self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
+        self.assertFalse(os.path.exists(os.path.join(self.out, "fibres", "broken.vtk")))
+
+        report = self.read("report.md")
+        self.assertIn("1 of 2 muscles prepared", report)
+        self.assertIn("triangles on non-manifold edges removed: 3", report)
+        self.assertIn("degenerate triangles removed: 2", report)
+        self.assertIn("duplicate triangles removed: 1", report)
+        self.assertIn("**Not prepared**", report)
+
+    def test_the_scene_names_its_files_relative_to_itself_and_a_closed_copy_of_the_bone_with_a_hole(self):
+        run = self.prepare("belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw)
+        self.assertEqual(run.returncode, 0, run.stdout + run.stderr)
+        self.assertIn("bone 'femur_r'", run.stdout)
+        scene = self.read("scene.yaml")
+        self.assertIn('urdf: "../hip.urdf"', scene)
+        self.assertIn('frame: "pelvis"', scene)
+        self.assertIn('surface: "meshes/muscles/belly.stl"', scene)
+        self.assertIn('fibres: "fibres/belly.vtk"', scene)
+        self.assertIn('- mesh: "file://%s/femur_mm.obj"\n  surface: "meshes/bones/femur_r_femur_mm.stl"' % self.raw, scene)
+        self.assertTrue(os.path.isfile(os.path.join(self.out, "meshes", "bones", "femur_r_femur_mm.stl")))
+        self.assertIn("Fixed Frame: pelvis", self.read("view.rviz"))
+        self.assertIn("roslaunch muscle_deformation gait_playback.launch scene:=%s/scene.yaml" % self.out, run.stdout)
+
+    def test_a_bad_command_line_is_refused_naming_the_problem(self):
+        run = self.prepare("belly_without_links:%s/belly_mm.obj" % self.raw)
+        self.assertEqual(run.returncode, 1)
+        self.assertIn("is not NAME:MESH:ORIGIN_LINK:INSERTION_LINK", run.stderr)
+        self.assertIn("usage: prepare_scene", run.stderr)
+
+
+if __name__ == "__main__":
+    unittest.main()

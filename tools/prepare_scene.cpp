@@ -1,0 +1,113 @@
+// prepare_scene: a scene directory the node runs as it is, from segmented muscle surfaces and a skeleton URDF.
+//
+//   rosrun muscle_deformation prepare_scene --urdf SKELETON.urdf --muscle NAME:MESH:ORIGIN_LINK:INSERTION_LINK
+//       [--muscle ...] --out DIR [--scale S] [--frame LINK] [--package-dir DIR] [fibre options]
+//
+// The work is the preprocessing library's (scene_preparation.hpp); this reads the command line and prints a summary.
+// Exit status: 0 = every muscle prepared and every bone usable, 1 = a muscle could not be prepared or a bone mesh is
+// unusable (after preparing all the others; report.md says why) or bad input, 2 = prepared, but fibre checks failed.
+#include "command_line.hpp"
+#include "muscle_deformation/preprocessing/scene_directory.hpp"
+#include "muscle_deformation/preprocessing/scene_preparation.hpp"
+
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <set>
+#include <string>
+
+namespace md = muscle_deformation;
+namespace fs = std::filesystem;
+using md::tools::UsageError;
+
+namespace {
+
+const std::string kUsage = std::string(
+    "usage: prepare_scene --urdf SKELETON.urdf --muscle NAME:MESH:ORIGIN_LINK:INSERTION_LINK [--muscle ...]\n"
+    "                     --out DIR [--scale S] [--frame LINK] [--package-dir DIR] [options]\n"
+    "Reads each muscle surface (.stl .ply .vtk .vtp .obj), repairs small defects (holes, non-manifold edges,\n"
+    "degenerate, duplicated or flipped triangles, loose pieces) or refuses it saying why, checks that the URDF's\n"
+    "bone meshes (its links' <collision> meshes) are closed and repairs copies of those that are not, generates the\n"
+    "fibres and writes DIR/scene.yaml (paths relative to it), DIR/meshes/, DIR/fibres/, DIR/report.md and\n"
+    "DIR/view.rviz. A muscle that cannot be prepared does not stop the others.\n"
+    "  --urdf FILE        the skeleton; bones are its links' collision meshes (absolute paths, file:// or\n"
+    "                     package:// URIs: the node reads the URDF from robot_description)\n"
+    "  --muscle SPEC      NAME:MESH:ORIGIN_LINK:INSERTION_LINK, once per muscle; the links are URDF links with bones\n"
+    "  --out DIR          the scene directory (created; an earlier run's files there are overwritten)\n"
+    "  --scale S          multiply the muscle files' coordinates by S to get metres (default 1; 0.001 for mm)\n"
+    "  --frame LINK       the link whose frame the muscle files use at the URDF's zero configuration (default: the\n"
+    "                     URDF's root link); the node's fixed_frame must be this link or one that coincides with it\n"
+    "  --package-dir DIR  a package folder for package:// URIs (others are looked up under ROS_PACKAGE_PATH)\n") +
+    md::tools::kFibreOptionsUsage +
+    "  --help             this text\n"
+    "Exit status: 0 = every muscle prepared and every bone usable; 1 = a muscle could not be prepared or a bone is\n"
+    "unusable (report.md says why), or bad input; 2 = prepared, but some fibre checks failed (report.md).\n";
+
+int run(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
+      std::cout << kUsage;
+      return 0;
+    }
+  }
+  std::set<std::string> value_options = {"--urdf", "--muscle", "--out", "--scale", "--frame", "--package-dir"};
+  value_options.insert(md::tools::kFibreOptionNames.begin(), md::tools::kFibreOptionNames.end());
+  const md::tools::Arguments args(argc, argv, value_options, {}, {"--muscle"});
+  for (const char* required : {"--urdf", "--muscle", "--out"})
+    if (!args.has(required)) throw UsageError(std::string(required) + " is required");
+
+  md::ScenePreparationRequest request;
+  request.out_dir = args.value("--out");
+  request.command_line = md::tools::Arguments::joined(argc, argv);
+  request.urdf_file = args.value("--urdf");
+  for (const std::string& spec : args.values("--muscle")) {
+    try {
+      request.muscles.push_back(md::parseMuscleSource(spec));
+    } catch (const std::invalid_argument& e) {
+      throw UsageError(std::string("--muscle ") + e.what());
+    }
+  }
+  if (args.has("--scale")) request.scale_to_metres = md::tools::parsePositive("--scale", args.value("--scale"), "to metres");
+  if (args.has("--frame")) request.frame = args.value("--frame");
+  std::map<std::string, std::string> packages;
+  if (args.has("--package-dir")) {
+    const std::string& directory = args.value("--package-dir");
+    const std::string name = md::tools::packageNameIn(directory);
+    if (name.empty()) throw UsageError("--package-dir " + directory + ": no package.xml with a <name> there");
+    packages[name] = directory;
+  }
+  // Plain paths in the URDF start at its folder here; the report flags them, as the node cannot resolve them.
+  request.resolve_uri =
+      md::tools::packageUriResolver(packages, fs::absolute(request.urdf_file).parent_path().string());
+  request.fibres = md::tools::fibreOptions(args);
+
+  const md::ScenePreparation scene =
+      md::prepareScene(request, [](const std::string& line) { std::cout << line << std::endl; });
+  int checks_failed = 0;
+  for (const md::PreparedMuscle& muscle : scene.muscles)
+    if (muscle.prepared() && !muscle.fibres.checks.passed()) ++checks_failed;
+  const fs::path dir = scene.out_dir;
+  std::cout << scene.preparedCount() << " of " << scene.muscles.size() << " muscles prepared"
+            << (checks_failed ? " (" + std::to_string(checks_failed) + " with failed fibre checks)" : "") << "; report "
+            << (dir / md::kReportFileName).string() << "\n";
+  if (!scene.bonesUsable()) std::cout << "a bone mesh is unusable: the node cannot run this scene (see the report)\n";
+  if (scene.preparedCount() > 0)
+    std::cout << "run it: roslaunch muscle_deformation gait_playback.launch scene:=" << (dir / md::kSceneFileName).string()
+              << " urdf:=" << scene.urdf_file << (scene.frame == "pelvis" ? "" : " fixed_frame:=" + scene.frame)
+              << " rviz_config:=" << (dir / md::kRvizFileName).string() << " bag:=YOUR.bag\n";
+  if (scene.preparedCount() < static_cast<int>(scene.muscles.size()) || !scene.bonesUsable()) return 1;
+  return checks_failed ? 2 : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const UsageError& e) {
+    std::cerr << "prepare_scene: " << e.what() << "\n" << kUsage;
+  } catch (const std::exception& e) {
+    std::cerr << "prepare_scene: " << e.what() << "\n";
+  }
+  return 1;
+}
