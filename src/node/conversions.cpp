@@ -242,6 +242,31 @@ visualization_msgs::MarkerArray surfacesToMarkers(const FrameResult& frame, cons
   return array;
 }
 
+visualization_msgs::MarkerArray bonesToMarkers(const std::vector<Bone>& bones,
+                                               const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
+  visualization_msgs::MarkerArray array;
+  for (std::size_t b = 0; b < bones.size(); ++b) {
+    const auto rest = rest_link_poses.find(bones[b].name);
+    if (rest == rest_link_poses.end()) continue;  // not a link: nothing to hang it on
+    std_msgs::Header header;
+    header.frame_id = bones[b].name;
+    visualization_msgs::Marker marker =
+        baseMarker(header, "bones", static_cast<int>(b), visualization_msgs::Marker::TRIANGLE_LIST);
+    marker.frame_locked = true;
+    marker.color.r = kBoneColour[0];
+    marker.color.g = kBoneColour[1];
+    marker.color.b = kBoneColour[2];
+    marker.color.a = kBoneColour[3];
+    const Eigen::Isometry3d to_link = rest->second.inverse();
+    const TriangleMesh& surface = bones[b].surface;
+    marker.points.reserve(static_cast<std::size_t>(surface.triangles.size()));
+    for (Eigen::Index t = 0; t < surface.triangleCount(); ++t)
+      for (int c = 0; c < 3; ++c) marker.points.push_back(pointOf(to_link * surface.vertices.col(surface.triangles(c, t))));
+    array.markers.push_back(std::move(marker));
+  }
+  return array;
+}
+
 muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, const std_msgs::Header& header) {
   muscle_deformation::DeformationStats stats;
   stats.header = header;

@@ -68,6 +68,20 @@ void warnIfTheSceneWasMadeForAnotherSkeleton(const SceneDescription& scene, cons
   }
 }
 
+// Bones are looked up in the fixed frame while the scene's surfaces are given in the scene's own frame: at rest the two
+// must coincide, or every bone would be moved by the offset between them. A fixed frame that is not a link of the
+// skeleton (a frame above it in tf) cannot be checked here.
+void requireFixedFrameAtSceneFrame(const Scene& scene, const std::string& scene_frame, const std::string& fixed_frame) {
+  const auto fixed = scene.rest_link_poses.find(fixed_frame);
+  if (fixed == scene.rest_link_poses.end()) return;
+  constexpr double kCoincident = 1e-6;  // m, and rad in the rotation's entries
+  if ((fixed->second.matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff() <= kCoincident) return;
+  throw std::runtime_error("fixed_frame '" + fixed_frame + "' does not coincide with the scene's frame '" + scene_frame +
+                           "' at the URDF's zero configuration, so the bones would be moved by the offset between "
+                           "them; set fixed_frame to '" + scene_frame + "' (gait_playback.launch fixed_frame:=" +
+                           scene_frame + ")");
+}
+
 double median(std::vector<double> values) {
   if (values.empty()) return 0;
   const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
@@ -109,6 +123,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
     // Fails naming every link the scene needs that robot_description lacks.
     scene_ = loadScene(scene_description_, skeleton, rosUriResolver(package_root), settings_.muscles);
     if (scene_.muscles.empty()) throw std::runtime_error("the scene selects no muscle");
+    requireFixedFrameAtSceneFrame(scene_, scene_description_.frame, settings_.fixed_frame);
     stream_ = std::make_unique<DeformationPipeline>(scene_.muscle_descriptions, scene_.muscles, scene_.bones,
                                                     settings_.pipeline);
   } catch (const std::exception& e) {
@@ -123,6 +138,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
                                                << "'");
   ROS_INFO_STREAM("muscle_deformation: built " << stream_->describe() << "; startup " << startup_ms << " ms");
   for (const std::string& repair : scene_.repairs) ROS_WARN_STREAM("muscle_deformation: " << repair);
+  for (const std::string& warning : scene_.warnings) ROS_WARN_STREAM("muscle_deformation: " << warning);
   for (const std::string& warning : stream_->simulation().buildReport().warnings)
     ROS_WARN_STREAM("muscle_deformation: " << warning);
   if (!stream_->skinning()) ROS_WARN_STREAM("muscle_deformation: ~surfaces disabled: " << stream_->skinningProblem());
@@ -134,6 +150,8 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
       ROS_WARN_STREAM("muscle_deformation: ~stats without " << absent.describe());
   }
 
+  bones_pub_ = private_node_.advertise<visualization_msgs::MarkerArray>("bones", 1, /*latch=*/true);
+  bones_pub_.publish(bonesToMarkers(stream_->bones(), scene_.rest_link_poses));
   fibres_pub_ = private_node_.advertise<visualization_msgs::MarkerArray>("fibres", 1);
   particles_pub_ = private_node_.advertise<sensor_msgs::PointCloud2>("particles", 1);
   surfaces_pub_ = private_node_.advertise<muscle_deformation::MuscleSurfaces>("surfaces", 1);

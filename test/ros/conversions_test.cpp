@@ -273,3 +273,27 @@ TEST(Conversions, AFrameWithoutSurfacesGivesNone) {
   EXPECT_TRUE(node::surfacesToMessage(frame, std_msgs::Header()).muscles.empty());
   EXPECT_TRUE(node::surfacesToMarkers(frame, std_msgs::Header(), 1.0f).markers.empty());
 }
+
+// Bones are drawn in the bone colour whatever the URDF's materials say, each in its own link's frame so that rviz moves
+// it with tf: the marker's points are the rest surface seen from the link.
+TEST(Conversions, BonesAreMarkersInTheBoneColourInTheirLinksFramesThatFollowTf) {
+  md::Bone femur{0, "femur_r", md::makeBoxMesh({-0.02, -0.02, -0.4}, {0.02, 0.02, 0.0})};
+  md::Bone unlinked{1, "not_a_link", md::makeBoxMesh({0, 0, 0}, {0.01, 0.01, 0.01})};
+  Eigen::Isometry3d femur_rest = Eigen::Isometry3d::Identity();
+  femur_rest.translate(Eigen::Vector3d(-0.07, -0.1, -0.06)).rotate(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()));
+  const visualization_msgs::MarkerArray markers =
+      node::bonesToMarkers({femur, unlinked}, {{"femur_r", femur_rest}, {"pelvis", Eigen::Isometry3d::Identity()}});
+  ASSERT_EQ(markers.markers.size(), 1u);  // a bone that is no link has no frame to follow
+  const visualization_msgs::Marker& marker = markers.markers[0];
+  EXPECT_EQ(marker.header.frame_id, "femur_r");
+  EXPECT_TRUE(marker.header.stamp.isZero());
+  EXPECT_TRUE(marker.frame_locked);
+  EXPECT_EQ(marker.type, visualization_msgs::Marker::TRIANGLE_LIST);
+  EXPECT_FLOAT_EQ(marker.color.r, node::kBoneColour[0]);
+  EXPECT_FLOAT_EQ(marker.color.g, node::kBoneColour[1]);
+  EXPECT_FLOAT_EQ(marker.color.b, node::kBoneColour[2]);
+  ASSERT_EQ(marker.points.size(), 3 * static_cast<std::size_t>(femur.surface.triangleCount()));
+  const Eigen::Vector3d first = femur.surface.vertices.col(femur.surface.triangles(0, 0));
+  const Eigen::Vector3d seen(marker.points[0].x, marker.points[0].y, marker.points[0].z);
+  EXPECT_LT((femur_rest * seen - first).norm(), 1e-12);
+}

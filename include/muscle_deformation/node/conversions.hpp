@@ -17,6 +17,7 @@
 
 #include <Eigen/Geometry>
 
+#include <map>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -64,6 +65,15 @@ muscle_deformation::MuscleSurfaces surfacesToMessage(const FrameResult& frame, c
 // The same surfaces as TRIANGLE_LIST markers (namespace "surfaces", id = muscle index) for rviz.
 visualization_msgs::MarkerArray surfacesToMarkers(const FrameResult& frame, const std_msgs::Header& header,
                                                   float alpha);
+
+// The colour bones are drawn in (ivory): apart from the muscles' colours, whatever the URDF's materials say.
+constexpr float kBoneColour[4] = {0.92f, 0.88f, 0.78f, 1.0f};
+
+// The bones as TRIANGLE_LIST markers (namespace "bones", id = bone index) in kBoneColour, each in its own link's frame
+// (`rest_link_poses`: the links at rest in the scene frame the bone surfaces are given in) and frame_locked with stamp
+// 0, so that rviz moves them with the newest tf: published once, they follow the skeleton.
+visualization_msgs::MarkerArray bonesToMarkers(const std::vector<Bone>& bones,
+                                               const std::map<std::string, Eigen::Isometry3d>& rest_link_poses);
 
 // Per-frame statistics (the running counters are left at 0 for the caller to fill). `converged` is true only when a
 // convergence criterion was met (SolveStats::converged), never for running out of iterations or time. A figure the

@@ -112,6 +112,7 @@ class MuscleDeformationNode {
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
   ros::Publisher fibres_pub_, particles_pub_, surfaces_pub_, surface_markers_pub_, stats_pub_;
+  ros::Publisher bones_pub_;  // latched: the bones at rest, once, moved by rviz with tf
   ros::Subscriber joint_states_sub_;
   ros::ServiceServer deform_pose_srv_;
   diagnostic_updater::Updater diagnostics_;
