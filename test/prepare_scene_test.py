@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""prepare_scene end to end, as a user runs it: a skeleton URDF whose bone meshes are in millimetres (one with a hole),
-a muscle segmented in millimetres with the defects segmentations have (a non-manifold edge, degenerate and duplicated
-triangles) and a muscle that cannot be repaired. The tool must prepare the first, refuse the second saying why, and
-write a scene directory whose paths are relative to it. Small and synthetic, so that it runs in seconds."""
+"""prepare_scene end to end, as a user runs it: the small synthetic hip of test/data/prepare_scene (bone meshes in
+millimetres, the femur's with a hole), a muscle segmented in millimetres with the defects segmentations have (a
+non-manifold edge, degenerate and duplicated triangles) and a muscle that cannot be repaired. The tool must prepare the
+first, refuse the second saying why, and write a scene directory whose paths are relative to it. Runs in seconds."""
 import math
 import os
 import shutil
@@ -21,14 +21,6 @@ def write_obj(path, vertices, triangles):
             out.write("v %.6f %.6f %.6f\n" % tuple(v))
         for t in triangles:
             out.write("f %d %d %d\n" % tuple(i + 1 for i in t))
-
-
-def box(lo, hi):
-    """Closed box, outward winding (vertex i: bit 0 = x, bit 1 = y, bit 2 = z at the upper bound)."""
-    vertices = [(hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]) for i in range(8)]
-    triangles = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
-                 (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)]
-    return vertices, triangles
 
 
 def ellipsoid(centre, radii, rings=24, segments=32):
@@ -55,32 +47,13 @@ def ellipsoid(centre, radii, rings=24, segments=32):
     return vertices, triangles
 
 
-URDF = """<?xml version="1.0"?>
-<robot name="small_hip">
-  <link name="pelvis">
-    <collision><geometry><mesh filename="file://{dir}/pelvis_mm.obj" scale="0.001 0.001 0.001"/></geometry></collision>
-  </link>
-  <joint name="hip_flexion_r" type="revolute">
-    <parent link="pelvis"/><child link="femur_r"/>
-    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/>
-    <limit lower="-2" upper="2" effort="1" velocity="1"/>
-  </joint>
-  <link name="femur_r">
-    <collision><geometry><mesh filename="file://{dir}/femur_mm.obj" scale="0.001 0.001 0.001"/></geometry></collision>
-  </link>
-</robot>
-"""
+SMALL_HIP = os.path.join(PACKAGE, "test", "data", "prepare_scene", "small_hip.urdf")
 
 
 class PrepareSceneEndToEnd(unittest.TestCase):
     def setUp(self):
         self.raw = tempfile.mkdtemp(prefix="md_prepare_scene_")
         self.out = os.path.join(self.raw, "my scene")  # a space: paths are quoted
-        write_obj(os.path.join(self.raw, "pelvis_mm.obj"), *box((-40, -40, 100), (40, 40, 130)))
-        femur_vertices, femur_triangles = box((-40, -40, -30), (40, 40, 0))
-        write_obj(os.path.join(self.raw, "femur_mm.obj"), femur_vertices, femur_triangles[:-1])  # a hole
-        with open(os.path.join(self.raw, "hip.urdf"), "w") as out:
-            out.write(URDF.format(dir=self.raw))
         vertices, triangles = ellipsoid((0, 0, 50), (12, 12, 50))
         a, b = triangles[40][0], triangles[40][1]
         vertices.append(tuple(1.3 * c for c in vertices[a]))  # the tip of a fin on edge a-b: a non-manifold edge
@@ -92,7 +65,7 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         shutil.rmtree(self.raw)
 
     def prepare(self, *muscles):
-        command = [TOOL, "--urdf", os.path.join(self.raw, "hip.urdf"), "--out", self.out, "--scale", "0.001",
+        command = [TOOL, "--urdf", SMALL_HIP, "--package-dir", PACKAGE, "--out", self.out, "--scale", "0.001",
                    "--fibres", "16", "--min-voxels", "20000"]
         for muscle in muscles:
             command += ["--muscle", muscle]
@@ -127,11 +100,12 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertEqual(run.returncode, 0, run.stdout + run.stderr)
         self.assertIn("bone 'femur_r'", run.stdout)
         scene = self.read("scene.yaml")
-        self.assertIn('urdf: "../hip.urdf"', scene)
+        self.assertIn('urdf: "%s"' % os.path.relpath(SMALL_HIP, self.out), scene)
         self.assertIn('frame: "pelvis"', scene)
         self.assertIn('surface: "meshes/muscles/belly.stl"', scene)
         self.assertIn('fibres: "fibres/belly.vtk"', scene)
-        self.assertIn('- mesh: "file://%s/femur_mm.obj"\n  surface: "meshes/bones/femur_r_femur_mm.stl"' % self.raw, scene)
+        self.assertIn('- mesh: "package://muscle_deformation/test/data/prepare_scene/femur_mm.obj"\n'
+                      '  surface: "meshes/bones/femur_r_femur_mm.stl"', scene)
         self.assertTrue(os.path.isfile(os.path.join(self.out, "meshes", "bones", "femur_r_femur_mm.stl")))
         self.assertIn("Fixed Frame: pelvis", self.read("view.rviz"))
         self.assertIn("roslaunch muscle_deformation gait_playback.launch scene:=%s/scene.yaml" % self.out, run.stdout)

@@ -27,8 +27,6 @@ std::string readText(const fs::path& path) {
   return text.str();
 }
 
-void writeText(const fs::path& path, const std::string& text) { std::ofstream(path) << text; }
-
 md::TriangleMesh withExtraTriangles(md::TriangleMesh mesh, const std::vector<Eigen::Vector3i>& extra) {
   const Eigen::Index first = mesh.triangleCount();
   mesh.triangles.conservativeResize(Eigen::NoChange, first + static_cast<Eigen::Index>(extra.size()));
@@ -36,10 +34,14 @@ md::TriangleMesh withExtraTriangles(md::TriangleMesh mesh, const std::vector<Eig
   return mesh;
 }
 
-// A small hip: a `pelvis` box above a spindle muscle, a `femur_r` box below it (on a hip joint at the muscle's lower
-// end; its mesh has a hole), and a `marker` box against the muscle's side that is neither its origin nor insertion.
-// The muscle surface is in millimetres with the defects of a segmentation: a fin on one edge (a non-manifold edge),
-// two degenerate triangles and a duplicated one.
+const fs::path kSmallHip = fs::path(MD_TEST_DATA_DIR) / "prepare_scene" / "small_hip.urdf";
+
+md::UriResolver packageResolver() { return md::makeUriResolver({{"muscle_deformation", MD_PACKAGE_DIR}}, MD_PACKAGE_DIR); }
+
+// The small hip of test/data/prepare_scene (a `pelvis` box above the muscle, a `femur_r` box below it whose mesh has a
+// hole, a `marker` box against the muscle's side that is neither its origin nor insertion) and a spindle muscle
+// written in millimetres with the defects of a segmentation: a fin on one edge (a non-manifold edge), two degenerate
+// triangles and a duplicated one.
 class ScenePreparationTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -47,33 +49,6 @@ class ScenePreparationTest : public ::testing::Test {
     fs::remove_all(raw_);
     fs::create_directories(raw_);
     out_ = raw_ / "scene";
-
-    md::saveTriangleMeshStl((raw_ / "pelvis.stl").string(), md::makeBoxMesh({-0.04, -0.04, 0.1}, {0.04, 0.04, 0.13}));
-    md::saveTriangleMeshStl((raw_ / "marker.stl").string(), md::makeBoxMesh({0.011, -0.02, 0.04}, {0.03, 0.02, 0.06}));
-    md::TriangleMesh femur = md::makeBoxMesh({-0.04, -0.04, -0.03}, {0.04, 0.04, 0.0}, 0.02);
-    femur.triangles.conservativeResize(Eigen::NoChange, femur.triangleCount() - 2);  // a hole
-    md::saveTriangleMeshStl((raw_ / "femur.stl").string(), femur);
-    writeText(raw_ / "hip.urdf", R"(<?xml version="1.0"?>
-<robot name="small_hip">
-  <link name="pelvis">
-    <collision><geometry><mesh filename="file://)" + (raw_ / "pelvis.stl").string() + R"("/></geometry></collision>
-  </link>
-  <joint name="hip_flexion_r" type="revolute">
-    <parent link="pelvis"/><child link="femur_r"/>
-    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/>
-    <limit lower="-2" upper="2" effort="1" velocity="1"/>
-  </joint>
-  <link name="femur_r">
-    <collision><geometry><mesh filename="file://)" + (raw_ / "femur.stl").string() + R"("/></geometry></collision>
-  </link>
-  <joint name="marker_joint" type="fixed"><parent link="pelvis"/><child link="marker"/></joint>
-  <link name="marker">
-    <collision><geometry><mesh filename="file://)" + (raw_ / "marker.stl").string() + R"("/></geometry></collision>
-  </link>
-  <link name="no_bone"/>
-  <joint name="no_bone_joint" type="fixed"><parent link="pelvis"/><child link="no_bone"/></joint>
-</robot>
-)");
     md::TriangleMesh muscle =
         md::makeSpindleMuscle("muscle", {0, 0, 0.0}, {0, 0, 0.1}, 0.012, 1.0, 2, 10, 24, 30).surface;
     const Eigen::Vector3i t0 = muscle.triangles.col(0), t5 = muscle.triangles.col(5);
@@ -89,10 +64,10 @@ class ScenePreparationTest : public ::testing::Test {
   md::ScenePreparationRequest request(std::vector<md::MuscleSource> muscles) const {
     md::ScenePreparationRequest r;
     r.out_dir = out_.string();
-    r.urdf_file = (raw_ / "hip.urdf").string();
+    r.urdf_file = kSmallHip.string();
     r.muscles = std::move(muscles);
     r.scale_to_metres = 0.001;
-    r.resolve_uri = md::makeUriResolver({}, raw_.string());
+    r.resolve_uri = packageResolver();
     r.fibres.fibre_count = 16;
     r.fibres.min_inside_voxels = 20000;
     return r;
@@ -147,9 +122,9 @@ TEST_F(ScenePreparationTest, ABoneMeshThatIsNotClosedIsRepairedIntoTheSceneAndTh
   EXPECT_TRUE(md::checkSurfaceTopology(md::loadTriangleMesh((out_ / femur->stand_in).string())).closedManifold());
 
   const md::SceneDescription description = md::loadSceneDescription((out_ / md::kSceneFileName).string());
-  ASSERT_EQ(description.bone_surfaces.count("file://" + (raw_ / "femur.stl").string()), 1u);
-  const md::Scene loaded = md::loadScene(description, md::Skeleton::fromUrdfFile((raw_ / "hip.urdf").string()),
-                                         md::makeUriResolver({}, raw_.string()));
+  ASSERT_EQ(description.bone_surfaces.count("package://muscle_deformation/test/data/prepare_scene/femur_mm.obj"), 1u);
+  EXPECT_EQ(femur->stand_in, "meshes/bones/femur_r_femur_mm.stl");
+  const md::Scene loaded = md::loadScene(description, md::Skeleton::fromUrdfFile(kSmallHip.string()), packageResolver());
   for (const md::Bone& bone : loaded.bones)
     EXPECT_TRUE(md::checkSurfaceTopology(bone.surface).closedManifold()) << bone.name;
 }
@@ -161,14 +136,14 @@ TEST_F(ScenePreparationTest, ThePreparedSceneLoadsFromItsFolderWhereverItIsAndSo
   const std::string yaml = readText(out_ / md::kSceneFileName);
   EXPECT_CONTAINS(yaml, "surface: \"meshes/muscles/spindle.stl\"");
   EXPECT_CONTAINS(yaml, "fibres: \"fibres/spindle.vtk\"");
-  EXPECT_CONTAINS(yaml, "urdf: \"../hip.urdf\"");
+  EXPECT_CONTAINS(yaml, "urdf: \"" + kSmallHip.lexically_relative(out_).string() + "\"");
 
   const fs::path moved = raw_ / "elsewhere" / "my_scene";
   fs::create_directories(moved.parent_path());
   fs::rename(out_, moved);
   const md::SceneDescription description = md::loadSceneDescription((moved / md::kSceneFileName).string());
-  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile((raw_ / "hip.urdf").string());
-  md::Scene loaded = md::loadScene(description, skeleton, md::makeUriResolver({}, raw_.string()));
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kSmallHip.string());
+  md::Scene loaded = md::loadScene(description, skeleton, packageResolver());
   ASSERT_EQ(loaded.muscles.size(), 1u);
   EXPECT_TRUE(loaded.repairs.empty());   // the written surface is closed: nothing left to repair
   EXPECT_TRUE(loaded.warnings.empty());  // the fibre checks passed
@@ -228,8 +203,7 @@ TEST_F(ScenePreparationTest, FibresThatFailTheirChecksAreMarkedInTheirFileAndThe
   EXPECT_CONTAINS(recorded, "fibres instead of 16");
 
   const md::Scene loaded = md::loadScene(md::loadSceneDescription((out_ / md::kSceneFileName).string()),
-                                         md::Skeleton::fromUrdfFile((raw_ / "hip.urdf").string()),
-                                         md::makeUriResolver({}, raw_.string()));
+                                         md::Skeleton::fromUrdfFile(kSmallHip.string()), packageResolver());
   ASSERT_EQ(loaded.warnings.size(), 1u);
   EXPECT_CONTAINS(loaded.warnings[0], "muscle 'spindle': its fibres failed their checks");
   EXPECT_CONTAINS(loaded.warnings[0], "fibres instead of 16");
