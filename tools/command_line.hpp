@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 #include <set>
 #include <sstream>
@@ -22,6 +23,26 @@ namespace muscle_deformation::tools {
 struct UsageError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
+
+// A tool's main: prints `usage` for --help, else runs `run(argc, argv)`; a UsageError is printed with the usage, any
+// other error alone, and either exits 1.
+template <typename Run>
+int runTool(const char* tool, const std::string& usage, int argc, char** argv, Run run) {
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
+      std::cout << usage;
+      return 0;
+    }
+  }
+  try {
+    return run(argc, argv);
+  } catch (const UsageError& e) {
+    std::cerr << tool << ": " << e.what() << "\n" << usage;
+  } catch (const std::exception& e) {
+    std::cerr << tool << ": " << e.what() << "\n";
+  }
+  return 1;
+}
 
 // The command line as options and their values. An option in `value_options` takes the next word as its value (given
 // twice is an error unless it is also in `repeatable`); one in `flags` takes none.

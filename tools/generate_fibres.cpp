@@ -114,12 +114,6 @@ LoadedSurface loadMuscleSurface(const std::string& path, double scale, bool repa
 }
 
 int run(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
   std::set<std::string> value_options = {"--surface", "--origin-bone", "--insertion-bone", "--out", "--decimals",
                                          "--scale", "--scene", "--package-dir", "--muscles", "--report"};
   value_options.insert(md::tools::kFibreOptionNames.begin(), md::tools::kFibreOptionNames.end());
@@ -226,13 +220,4 @@ int run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const UsageError& e) {
-    std::cerr << "generate_fibres: " << e.what() << "\n" << kUsage;
-  } catch (const std::exception& e) {
-    std::cerr << "generate_fibres: " << e.what() << "\n";
-  }
-  return 1;
-}
+int main(int argc, char** argv) { return md::tools::runTool("generate_fibres", kUsage, argc, argv, run); }

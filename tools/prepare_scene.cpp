@@ -17,11 +17,13 @@
 #include <string>
 
 namespace md = muscle_deformation;
-namespace fs = std::filesystem;
-using md::tools::UsageError;
 
 namespace {
 
+namespace fs = std::filesystem;
+using UsageError = md::tools::UsageError;
+
+// What --help prints, and what a wrong command line is answered with after the error.
 const std::string kUsage = std::string(
     "usage: prepare_scene --urdf SKELETON.urdf --muscle NAME:MESH:ORIGIN_LINK:INSERTION_LINK [--muscle ...]\n"
     "                     --out DIR [--scale S] [--frame LINK] [--package-dir DIR] [options]\n"
@@ -44,12 +46,6 @@ const std::string kUsage = std::string(
     "unusable (report.md says why), or bad input; 2 = prepared, but some fibre checks failed (report.md).\n";
 
 int run(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
   std::set<std::string> value_options = {"--urdf", "--muscle", "--out", "--scale", "--frame", "--package-dir"};
   value_options.insert(md::tools::kFibreOptionNames.begin(), md::tools::kFibreOptionNames.end());
   const md::tools::Arguments args(argc, argv, value_options, {}, {"--muscle"});
@@ -101,13 +97,4 @@ int run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const UsageError& e) {
-    std::cerr << "prepare_scene: " << e.what() << "\n" << kUsage;
-  } catch (const std::exception& e) {
-    std::cerr << "prepare_scene: " << e.what() << "\n";
-  }
-  return 1;
-}
+int main(int argc, char** argv) { return md::tools::runTool("prepare_scene", kUsage, argc, argv, run); }
