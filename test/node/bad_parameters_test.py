@@ -81,6 +81,19 @@ class BadParameters(unittest.TestCase):
         self.assertIn("was made for another skeleton than /robot_description", output)
         self.assertIn("right_hip_thigh.urdf has 'patella_r'", output)
 
+    def test_a_fixed_frame_that_is_not_where_the_scene_frame_is_at_rest_is_refused(self):
+        # The bundled scene is given in the pelvis frame; the femur's frame sits at the hip centre.
+        package = rospkg.RosPack().get_path(PACKAGE)
+        subprocess.run(["rosparam", "set", "-t", os.path.join(package, "urdf", "right_hip_thigh.urdf"),
+                        "/robot_description"], check=True)
+        try:
+            code, output = self.run_node("_fixed_frame:=femur_r")
+        finally:
+            subprocess.run(["rosparam", "delete", "/robot_description"], capture_output=True)
+        self.assertNotEqual(code, 0)
+        self.assertIn("fixed_frame 'femur_r' does not coincide with the scene's frame 'pelvis'", output)
+        self.assertIn("set fixed_frame to 'pelvis'", output)
+
 
 if __name__ == "__main__":
     rosunit.unitrun(PACKAGE, "bad_parameters", BadParameters)
