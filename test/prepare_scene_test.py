@@ -3,6 +3,7 @@
 millimetres, the femur's with a hole), a muscle segmented in millimetres with the defects segmentations have (a
 non-manifold edge, degenerate and duplicated triangles) and a muscle that cannot be repaired. The tool must prepare the
 first, refuse the second saying why, and write a scene directory whose paths are relative to it. Runs in seconds."""
+import json
 import math
 import os
 import shutil
@@ -13,6 +14,7 @@ import unittest
 PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TOOL = os.environ.get("PREPARE_SCENE", os.path.join(PACKAGE, ".ws", "devel", "lib", "muscle_deformation",
                                                    "prepare_scene"))
+GENERATE_FIBRES = os.path.join(os.path.dirname(TOOL), "generate_fibres")  # built beside it
 
 
 def write_obj(path, vertices, triangles):
@@ -115,6 +117,28 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertEqual(run.returncode, 1)
         self.assertIn("is not NAME:MESH:ORIGIN_LINK:INSERTION_LINK", run.stderr)
         self.assertIn("usage: prepare_scene", run.stderr)
+
+    def test_generate_fibres_remakes_a_scenes_fibres_past_a_muscle_that_fails_and_finds_packages_on_its_own(self):
+        self.assertEqual(self.prepare("belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw).returncode, 0)
+        with open(os.path.join(self.out, "scene.yaml"), "a") as scene:
+            scene.write('- name: "lost"\n  surface: "meshes/muscles/nowhere.stl"\n  fibres: "fibres/lost.vtk"\n'
+                        '  origin_bone: "pelvis"\n  insertion_bone: "femur_r"\n')
+        fibres = os.path.join(self.out, "fibres", "belly.vtk")
+        os.remove(fibres)
+        report = os.path.join(self.raw, "fibres.json")
+        # No --package-dir: the URDF's package:// meshes are found under ROS_PACKAGE_PATH, as rosrun sets it.
+        run = subprocess.run([GENERATE_FIBRES, "--scene", os.path.join(self.out, "scene.yaml"), "--fibres", "16",
+                              "--min-voxels", "20000", "--report", report], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, universal_newlines=True, timeout=120,
+                             env=dict(os.environ, ROS_PACKAGE_PATH=PACKAGE))
+        self.assertEqual(run.returncode, 1, run.stdout + run.stderr)
+        self.assertIn("muscle 'lost' FAILED", run.stderr)
+        self.assertIn("nowhere.stl", run.stderr)
+        self.assertTrue(os.path.isfile(fibres))
+        with open(report) as f:
+            entries = json.load(f)
+        self.assertTrue(entries["belly"]["passed"])
+        self.assertIn("nowhere.stl", entries["lost"]["error"])
 
 
 if __name__ == "__main__":
