@@ -118,11 +118,9 @@ std::string muscleSection(const ScenePreparation& p, const PreparedMuscle& m) {
       << "`.\n";
   r << "- Volume: " << fixed(m.volume_m3 * 1e6, 1) << " ml; " << m.surface.triangleCount() << " triangles.\n";
   const FibreCheckReport& c = m.fibres.checks;
-  r << "- Fibres (`" << m.fibre_file << "`): " << m.fibres.fibres.size() << " of " << p.fibres_asked
-    << ", voxel " << millimetres(m.fibres.voxel_size) << ", seeded on a cross-section of "
-    << fixed(c.cross_section_area * 1e4, 1) << " cm^2 at " << fixed(100 * c.section_volume_fraction, 0)
-    << " % of the volume from the origin; checks " << (c.passed() ? "passed" : "**FAILED**") << ": " << c.describe()
-    << ".\n";
+  r << "- Fibres (`" << m.fibre_file << "`): " << m.fibres.fibres.size() << " of " << p.fibres_asked << ", voxel "
+    << millimetres(m.fibres.voxel_size) << "; checks " << (c.passed() ? "passed" : "**FAILED**") << ": "
+    << c.describe() << ".\n";
   for (const std::string& warning : m.fibres.warnings) r << "  - Warning: " << warning << ".\n";
   r << "- Attachment regions (where the fibres start and end): origin on "
     << patchText(m.fibres.patches.origin_from_bone, m.source.origin_link) << " ("

@@ -6,13 +6,10 @@
 #include "muscle_deformation/preprocessing/scene_directory.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
-#include <iomanip>
-#include <map>
-#include <memory>
 #include <set>
-#include <sstream>
 #include <stdexcept>
 
 namespace muscle_deformation {
@@ -48,7 +45,6 @@ std::string listOf(const std::vector<std::string>& names) {
   for (const std::string& name : names) out += (out.empty() ? "'" : ", '") + name + "'";
   return out.empty() ? "none" : out;
 }
-
 
 // Reads every collision mesh of the URDF as the node will, and repairs the ones that are not closed into the scene
 // directory (meshes/bones/<link>_<file name>.stl, in the mesh's own units and frame).
