@@ -15,6 +15,8 @@
 #include <fstream>
 #include <sstream>
 
+#include <unistd.h>  // getpid: a temporary folder per test process
+
 namespace md = muscle_deformation;
 namespace fs = std::filesystem;
 
