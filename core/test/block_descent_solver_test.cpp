@@ -244,19 +244,109 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
   settings.solver_kind = SolverKind::block_descent;
   settings.block_descent.stopping_rule = StoppingRule::iterations;
   settings.block_descent.max_iterations = 12;
-  Eigen::Matrix3Xd positions[2];
-  int contacts[2] = {0, 0};
-  for (const int threads : {1, 2}) {
-    settings.block_descent.threads = threads;
-    MuscleSimulation simulation(scene.muscles, scene.bones, settings);
-    simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
-    const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
-    positions[threads - 1] = simulation.state().position;
-    contacts[threads - 1] = stats.solver.contacts;
+  for (const double relaxation_s : {0.0, 0.0005}) {  // quasi-static, and with the node's tissue drag and prediction
+    settings.block_descent.tissue_relaxation_s = relaxation_s;
+    Eigen::Matrix3Xd positions[2];
+    int contacts[2] = {0, 0};
+    for (const int threads : {1, 2}) {
+      settings.block_descent.threads = threads;
+      MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+      simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
+      simulation.solve(syntheticThighPose(0.5, 0.7), StartMode::warm);
+      const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
+      positions[threads - 1] = simulation.state().position;
+      contacts[threads - 1] = stats.solver.contacts;
+    }
+    EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
+    EXPECT_EQ(contacts[0], contacts[1]);
+    EXPECT_TRUE((positions[0].array() == positions[1].array()).all()) << "tissue_relaxation_s " << relaxation_s;
   }
-  EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
-  EXPECT_EQ(contacts[0], contacts[1]);
-  EXPECT_TRUE((positions[0].array() == positions[1].array()).all());  // bit for bit
+}
+
+namespace {
+// One free particle hanging from a fixed one by a spring of rest length 1 m and stiffness 1 N/m: without drag it may
+// sit anywhere on the unit sphere. Carried to `carried`, with drag weight w = relaxation / interval (its summed spring
+// stiffness is 1 N/m), the answer is the minimiser of 1/2 (|x| - 1)^2 + w/2 |x - y|^2: on the ray through y at
+// r = (1 + w |y|) / (1 + w).
+MassSpringSystem pendulum() {
+  Eigen::Matrix3Xd positions(3, 2);
+  positions << 0, 1, 0, 0, 0, 0;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}}, 1.0, 1.0);
+  system.is_fixed[0] = 1;
+  return system;
+}
+Eigen::Vector3d pendulumAnswer(const Eigen::Vector3d& carried, double weight) {
+  return (1.0 + weight * carried.norm()) / (1.0 + weight) * carried.normalized();
+}
+}  // namespace
+
+TEST(BlockDescent, TissueDragGivesAFloppyParticleOneAnswerTowardsWhereTheTissueCarriesIt) {
+  const MassSpringSystem system = pendulum();
+  BlockDescentSettings settings = converging(200, 1e-12);
+  settings.tissue_relaxation_s = 0.005;
+  BlockDescentSolver solver(system, settings);
+  solver.setFrameInterval(0.01);  // w = 0.5 N/m
+  ParticleState state = stateAt(system.rest_position);
+  const Eigen::Vector3d carried(1.5, 1.0, 0.2);
+  state.carried_position = state.position;
+  state.carried_position.col(1) = carried;
+  const SolveStats stats = solver.solve(state);
+  EXPECT_TRUE(stats.converged);
+  EXPECT_LT((state.position.col(1) - pendulumAnswer(carried, 0.5)).norm(), 1e-9);
+  EXPECT_LT(solver.residualOf(state), 1e-9);  // the drag is part of the frame's balance
+  ParticleState without_carried = state;
+  without_carried.carried_position.resize(3, 0);
+  EXPECT_GT(solver.residualOf(without_carried), 0.1);  // spring alone: stretched, so not in balance
+}
+
+TEST(BlockDescent, TissueDragWeighsByTheFrameIntervalWithinItsClamp) {
+  const MassSpringSystem system = pendulum();
+  BlockDescentSettings settings = converging(200, 1e-12);
+  settings.tissue_relaxation_s = 0.005;
+  BlockDescentSolver solver(system, settings);
+  const Eigen::Vector3d carried(0.2, 2.0, 0.0);
+  const auto solveAt = [&](double interval_s) {
+    solver.setFrameInterval(interval_s);
+    ParticleState state = stateAt(system.rest_position);
+    state.carried_position = state.position;
+    state.carried_position.col(1) = carried;
+    solver.solve(state);
+    return Eigen::Vector3d(state.position.col(1));
+  };
+  EXPECT_LT((solveAt(0.02) - pendulumAnswer(carried, 0.25)).norm(), 1e-9);
+  EXPECT_LT((solveAt(1e-6) - pendulumAnswer(carried, 5.0)).norm(), 1e-9);   // clamped to 1 ms
+  EXPECT_LT((solveAt(10.0) - pendulumAnswer(carried, 0.05)).norm(), 1e-9);  // clamped to 0.1 s
+  EXPECT_DOUBLE_EQ(solver.frameInterval(), BlockDescentSolver::kMaxFrameIntervalS);
+  BlockDescentSettings bad;
+  bad.tissue_relaxation_s = -1;
+  EXPECT_FALSE(validate(bad).empty());
+}
+
+TEST(BlockDescent, ThePredictedStartChangesWhereSweepsBeginNotTheFramesAnswer) {
+  const SyntheticScene scene = makeSyntheticThigh(4, 4);
+  SimulationSettings settings;
+  settings.model.particles_per_fibre = 10;
+  settings.solver_kind = SolverKind::block_descent;
+  settings.block_descent.tissue_relaxation_s = 0.0005;
+  settings.stopping.rule = StoppingRule::force_residual;
+  settings.stopping.max_iterations = 5000;
+  settings.block_descent.residual_tolerance = 1e-9;
+  shareStoppingRule(settings);
+  Eigen::Matrix3Xd answers[2];
+  int first_sweeps[2] = {0, 0};
+  for (const bool predict : {false, true}) {
+    settings.block_descent.predict_start = predict;
+    MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+    simulation.solve(syntheticThighPose(0.0, 0.0), StartMode::cold);
+    for (int frame = 1; frame <= 4; ++frame) {
+      const FrameStats stats = simulation.solve(syntheticThighPose(0.05 * frame, 0.08 * frame), StartMode::warm);
+      ASSERT_TRUE(stats.solver.converged) << "frame " << frame;
+      if (frame == 4) first_sweeps[predict] = stats.solver.iterations;
+    }
+    answers[predict] = simulation.state().position;
+  }
+  EXPECT_LT((answers[0] - answers[1]).colwise().norm().maxCoeff(), 1e-6);  // metres: one answer
+  EXPECT_LT(first_sweeps[1], first_sweeps[0]);  // the prediction starts closer to it
 }
 
 TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {

@@ -367,8 +367,10 @@ void MuscleDeformationNode::solveStreamFrame(const LinkPoses& link_poses) {
   const bool want_surface_markers = surface_markers_pub_.getNumSubscribers() > 0;
   const bool want_stats = stats_pub_.getNumSubscribers() > 0;
   const StartMode start = decision.start == StreamStart::warm ? StartMode::warm : StartMode::cold;
+  // The tissue drag relaxes over the time the stamps say passed since the previous solved pose (poses dropped while
+  // the solver was busy included).
   const FrameResult& frame = stream_->solve(transforms, start, want_surfaces || want_surface_markers,
-                                            want_stats && settings_.stream.stats_metrics);
+                                            want_stats && settings_.stream.stats_metrics, decision.elapsed_s);
   if (frame.stats.finite && !frame.stats.solver.diverged)
     stream_policy_->accept(link_poses.stamp.toSec(), transforms);
   else
@@ -551,9 +553,10 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
     PipelineSettings settings = settings_.pipeline;
     settings.simulation.solver_kind = settings_.service.solver_kind;
     settings.simulation.local_global.lbfgs_history = settings_.service.lbfgs_history;
-    // Only block descent measures a force residual; another service solver runs its iteration count instead.
+    // Only block descent and Newton-Krylov measure a force residual; another service solver runs its iteration count
+    // instead.
     if (settings.simulation.stopping.rule == StoppingRule::force_residual &&
-        settings_.service.solver_kind != SolverKind::block_descent) {
+        !measuresForceResidual(settings_.service.solver_kind)) {
       settings.simulation.stopping.rule = StoppingRule::iterations;
       shareStoppingRule(settings.simulation);
     }
@@ -576,9 +579,9 @@ void MuscleDeformationNode::deformPose(const muscle_deformation::DeformPose::Req
   const StoppingSettings& node_stopping = settings_.pipeline.simulation.stopping;
   StoppingRule rule = request.displacement_tolerance_m > 0 ? StoppingRule::displacement : node_stopping.rule;
   // A frame's time budget is the stream's (a request bounds its own time with time_budget_ms), and only block descent
-  // measures a force residual: the service runs its iteration count instead.
+  // and Newton-Krylov measure a force residual: the service runs its iteration count instead.
   if (rule == StoppingRule::time_budget ||
-      (rule == StoppingRule::force_residual && settings_.service.solver_kind != SolverKind::block_descent))
+      (rule == StoppingRule::force_residual && !measuresForceResidual(settings_.service.solver_kind)))
     rule = StoppingRule::iterations;
   const int max_iterations = request.max_iterations > 0 ? request.max_iterations : settings_.service.max_iterations;
   const double tolerance_m =

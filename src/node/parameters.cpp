@@ -85,8 +85,8 @@ std::vector<NodeSettingSpec> buildNodeTable() {
                                   [](NodeSettings& s) -> std::string& { return s.fixed_frame; }),
       // ~deform_pose service
       entries::choice<NodeSettings, SolverKind>(
-          "service_solver", {"verlet", "local_global", "block_descent"},
-          {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent},
+          "service_solver", {"verlet", "local_global", "block_descent", "newton_krylov"},
+          {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent, SolverKind::newton_krylov},
           "the service's solver (the streaming one is `solver`)",
           [service](NodeSettings& s) -> SolverKind& { return service(s).solver_kind; }),
       entries::integer<NodeSettings>("service_lbfgs_history", "count", 0, 1000,
@@ -177,8 +177,8 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   SimulationSettings& simulation = settings.pipeline.simulation;
   const ServiceSettings& service = settings.service;
   shareStoppingRule(simulation);
-  if (simulation.stopping.rule == StoppingRule::force_residual && simulation.solver_kind != SolverKind::block_descent)
-    p.fail("stopping_rule", "force_residual is measured by the block_descent solver only (solver is " +
+  if (simulation.stopping.rule == StoppingRule::force_residual && !measuresForceResidual(simulation.solver_kind))
+    p.fail("stopping_rule", "force_residual is measured by the block_descent and newton_krylov solvers only (solver is " +
                                 toString(simulation.solver_kind) + ")");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).

@@ -41,7 +41,7 @@ class BadParameters(unittest.TestCase):
         self.assertNotEqual(code, 0)
         # The service's solver is read through the settings table, as every other choice is.
         self.assertIn("parameter /bad_parameters_node/service_solver 'euler' is not one of: verlet, local_global, "
-                      "block_descent", output)
+                      "block_descent, newton_krylov", output)
 
     def test_conflicting_solver_options_are_refused(self):
         code, output = self.run_node("_solver:=local_global", "_lbfgs_history:=4", "_chebyshev_rho:=0.5")

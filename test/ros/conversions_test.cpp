@@ -108,7 +108,7 @@ TEST(Conversions, StatsSayConvergedOnlyWhenTheSolverDidAndCarryTheRobustStrain) 
 
 TEST(Conversions, FiguresThatWereNotMeasuredAreNaNWithTheirFlagAndReasonNeverZero) {
   md::FrameResult frame;  // solver without a residual, collisions off, no surface metrics
-  frame.residual_absent_reason = "the verlet solver does not measure it (only block_descent does)";
+  frame.residual_absent_reason = "the verlet solver does not measure it (only block_descent and newton_krylov do)";
   frame.collision_absent_reason = "collisions are off";
   frame.metrics_absent_reason = "bone 'pelvis': surface is not closed (3 boundary edges)";
   const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());

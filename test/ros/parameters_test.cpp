@@ -167,7 +167,7 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
             prefix + "stopping_rule 'forever' is not one of: iterations, displacement, time_budget, force_residual");
   EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("verlet"))},
                      {"stopping_rule", XmlRpc::XmlRpcValue(std::string("force_residual"))}}),
-            prefix + "stopping_rule force_residual is measured by the block_descent solver only (solver is verlet)");
+            prefix + "stopping_rule force_residual is measured by the block_descent and newton_krylov solvers only (solver is verlet)");
   EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("block_descent"))},
                      {"stopping_rule", XmlRpc::XmlRpcValue(std::string("force_residual"))}}),
             "");

@@ -60,13 +60,13 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
 }
 
 const FrameResult& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
-                                              bool want_metrics) {
-  return solve(boneTransformsOf(simulation_->bones(), pose), start, want_surfaces, want_metrics);
+                                              bool want_metrics, double frame_interval_s) {
+  return solve(boneTransformsOf(simulation_->bones(), pose), start, want_surfaces, want_metrics, frame_interval_s);
 }
 
 const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces,
-                                              bool want_metrics) {
-  frame_.stats = simulation_->solve(transforms, start);
+                                              bool want_metrics, double frame_interval_s) {
+  frame_.stats = simulation_->solve(transforms, start, frame_interval_s);
   frame_.bone_transforms = transforms;
   frame_.has_surfaces = false;
   frame_.has_metrics = false;
@@ -78,7 +78,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   frame_.collision_absent_reason.clear();
   frame_.metrics_absent_reason.clear();
   if (frame_.stats.solver.residual < 0)
-    frame_.residual_absent_reason = simulation_->settings().solver_kind == SolverKind::block_descent
+    frame_.residual_absent_reason = measuresForceResidual(simulation_->settings().solver_kind)
                                         ? "not measured in this solve"
                                         : residualAbsence().reason;
   if (!frame_.stats.has_collision) frame_.collision_absent_reason = collisionAbsence().reason;
@@ -114,7 +114,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
 
 AbsentMetric DeformationPipeline::residualAbsence() const {
   const SolverKind kind = simulation_->settings().solver_kind;
-  return {"force_residual", "the " + toString(kind) + " solver does not measure it (only block_descent does)",
+  return {"force_residual", "the " + toString(kind) + " solver does not measure it (only block_descent and newton_krylov do)",
           "set solver: block_descent", true};
 }
 
@@ -138,7 +138,7 @@ AbsentMetric DeformationPipeline::metricsAbsence() const {
 
 std::vector<AbsentMetric> DeformationPipeline::absentMetrics() const {
   std::vector<AbsentMetric> absent;
-  if (simulation_->settings().solver_kind != SolverKind::block_descent) absent.push_back(residualAbsence());
+  if (!measuresForceResidual(simulation_->settings().solver_kind)) absent.push_back(residualAbsence());
   if (!simulation_->collisionWorld()) absent.push_back(collisionAbsence());
   if (!metrics_) absent.push_back(metricsAbsence());
   return absent;

@@ -45,7 +45,9 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   // local/global contact weights, the adaptive step's boundary particles). The local/global solver factorises its
   // matrix here, once: it depends on the model and settings, not the pose.
   solver_ = makeSolver(
-      SolverChoice{settings_.solver_kind, settings_.verlet, settings_.local_global, settings_.block_descent}, system_);
+      SolverChoice{settings_.solver_kind, settings_.verlet, settings_.local_global, settings_.block_descent,
+                   settings_.newton_krylov},
+      system_);
   if (collision_ && solver_->solvesContacts())
     solver_->setContactQuery(
         [this](const ParticleState& state, double margin_m, ContactSet& contacts) {
@@ -65,6 +67,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   if (!position.allFinite()) throw std::invalid_argument("continueFrom: non-finite position");
   state_.position = position;
   state_.previous_position = position;
+  correction_.setZero(3, position.cols());
   previous_transforms_ = transforms;
   has_previous_ = true;
 }
@@ -87,16 +90,22 @@ StoppingSettings MuscleSimulation::runningStopping() const {
     case SolverKind::local_global:
       return of(settings_.local_global);
     case SolverKind::block_descent:
+    case SolverKind::newton_krylov:  // stops by the block-descent settings, whose energy it minimises
       return of(settings_.block_descent);
   }
   return of(settings_.verlet);
 }
 
-FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start) {
-  return solve(boneTransformsOf(bones_, pose), start);
+bool MuscleSimulation::tissueDrag() const {
+  return (settings_.solver_kind == SolverKind::block_descent || settings_.solver_kind == SolverKind::newton_krylov) &&
+         settings_.block_descent.tissue_relaxation_s > 0;
 }
 
-FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start) {
+FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start, double frame_interval_s) {
+  return solve(boneTransformsOf(bones_, pose), start, frame_interval_s);
+}
+
+FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start, double frame_interval_s) {
   if (transforms.size() != bones_.size())
     throw std::invalid_argument("pose has " + std::to_string(transforms.size()) + " bone transforms for " +
                                 std::to_string(bones_.size()) + " bones");
@@ -105,10 +114,29 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   FrameStats stats;
   stats.has_collision = collision_ != nullptr;
   stats.warm_started = start == StartMode::warm && has_previous_;
+  const bool drag = tissueDrag();
+  const bool predict = drag && settings_.block_descent.predict_start && stats.warm_started &&
+                       correction_.cols() == system_.particleCount();
+  ParticleState predicted;
+  if (predict) {
+    // The previous answer plus its correction, moved with the bones like the answer itself.
+    predicted.position = state_.position + correction_;
+    warmStart(system_, previous_transforms_, transforms, predicted);
+  }
   if (stats.warm_started)
     warmStart(system_, previous_transforms_, transforms, state_);
   else
     rigidPretransform(system_, transforms, state_);
+  if (drag) {
+    state_.carried_position = state_.position;
+    if (predict)
+      for (Eigen::Index i = 0; i < system_.particleCount(); ++i)
+        if (!system_.is_fixed[static_cast<std::size_t>(i)]) state_.position.col(i) = predicted.position.col(i);
+    state_.previous_position = state_.position;
+  } else {
+    state_.carried_position.resize(3, 0);
+  }
+  solver_->setFrameInterval(stats.warm_started ? frame_interval_s : kNominalFrameIntervalS);
 
   // A time budget is the real-time contract of a continuing stream. A cold start (the first frame, a discontinuity)
   // continues nothing: from the rigid pre-transform one budget's sweep leaves particles up to 2 mm inside bone (gait
@@ -151,6 +179,10 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   }
   previous_transforms_ = transforms;
   has_previous_ = stats.finite && !stats.solver.diverged;  // never warm-start from a broken state
+  if (drag && stats.warm_started && has_previous_)
+    correction_ = state_.position - state_.carried_position;  // zero for fixed particles: both follow their bone
+  else
+    correction_.setZero(3, system_.particleCount());
   return stats;
 }
 

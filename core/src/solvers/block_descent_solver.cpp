@@ -131,6 +131,8 @@ std::string validate(const BlockDescentSettings& settings) {
     return "contact_margin_scale must be a non-negative number";
   if (settings.contact_newton_steps < 1) return "contact_newton_steps must be >= 1";
   if (settings.threads < 0) return "threads must be >= 0 (0 = every core)";
+  if (!(settings.tissue_relaxation_s >= 0) || !std::isfinite(settings.tissue_relaxation_s))
+    return "tissue_relaxation_s must be a finite number >= 0";
   if (settings.max_iterations < 0) return "max_iterations must be >= 0";
   if (!(settings.residual_tolerance >= 0) || !(settings.displacement_tolerance_m >= 0) ||
       !(settings.time_budget_ms >= 0))
@@ -215,17 +217,20 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   // random sampling leaves springs a few micrometres long (k = material / rest length up to 10^4 x the median), and a
   // free particle tied by one to an attachment inside a bone sphere would otherwise stay inside with it.
   regularisation_.setZero(n);
+  spring_stiffness_sum_.setZero(n);
   particle_contact_stiffness_.setZero(n);
   for (Eigen::Index i = 0; i < n; ++i) {
     double sum = 0;
     for (std::int32_t k = neighbour_begin_[static_cast<std::size_t>(i)]; k < neighbour_begin_[static_cast<std::size_t>(i) + 1]; ++k)
       sum += neighbours_[static_cast<std::size_t>(k)].stiffness;
     regularisation_[i] = 1e-9 * sum + 1e-12;
+    spring_stiffness_sum_[i] = sum;
     particle_contact_stiffness_[i] = std::max(contact_stiffness_, settings_.contact_stiffness_scale * sum);
   }
   for (Eigen::Index i = 0; i < n; ++i)
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
   buildColouring();
+  updateDragWeights();
   // Springs repacked in visiting order: a sweep then reads them front to back, instead of jumping through the
   // particle-ordered lists colour by colour (the sweep's cost is mostly reading them).
   std::vector<NeighbourSpring> visit_order;
@@ -244,6 +249,20 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   contact_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
   bounded_step_.assign(static_cast<std::size_t>(n), 0);
   for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
+}
+
+void BlockDescentSolver::updateDragWeights() {
+  const double factor = settings_.tissue_relaxation_s / frame_interval_s_;
+  drag_weight_.setZero(system_.particleCount());
+  for (const std::int32_t p : free_particles_) drag_weight_[p] = factor * spring_stiffness_sum_[p];
+}
+
+void BlockDescentSolver::setFrameInterval(double seconds) {
+  if (!std::isfinite(seconds)) seconds = kNominalFrameIntervalS;
+  const double clamped = std::clamp(seconds, kMinFrameIntervalS, kMaxFrameIntervalS);
+  if (clamped == frame_interval_s_) return;
+  frame_interval_s_ = clamped;
+  updateDragWeights();
 }
 
 void BlockDescentSolver::setContactQuery(ContactQuery query, bool every_particle_collides) {
@@ -282,9 +301,9 @@ void BlockDescentSolver::buildColouring() {
     coloured_particles_[static_cast<std::size_t>(fill[static_cast<std::size_t>(colour[static_cast<std::size_t>(p)])]++)] = p;
 }
 
-void BlockDescentSolver::gatherContacts(const ParticleState& state) {
+void BlockDescentSolver::gatherContacts(const ParticleState& state, double margin_m) {
   contacts_.clear();
-  if (contact_query_) contact_query_(state, contact_margin_m_, contacts_);
+  if (contact_query_) contact_query_(state, margin_m < 0 ? contact_margin_m_ : margin_m, contacts_);
   // Counting sort of the contacts by particle; a pair is entered at both ends with the partner's index (the sweep
   // copies the partner's position before each colour).
   std::fill(contact_begin_.begin(), contact_begin_.end(), 0);
@@ -376,6 +395,8 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const std::int32_t spring_begin = slot_spring_begin_[static_cast<std::size_t>(k)];
       const std::int32_t spring_end = slot_spring_begin_[static_cast<std::size_t>(k) + 1];
       const bool has_contacts = contact_end > contact_begin;
+      const double drag = drag_weight_[p];
+      const Eigen::Vector3d carried = drag_anchor_->col(p);
       // The particle's own energy with every other particle held: what its step must decrease.
       const auto local_energy = [&](const Eigen::Vector3d& at) {
         double energy = 0;
@@ -387,7 +408,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
           energy += contactEnergy(at, entry, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
         }
-        return energy;
+        return energy + 0.5 * drag * (at - carried).squaredNorm();
       };
       const Eigen::Vector3d start = position.col(p);
       Eigen::Vector3d x = start;
@@ -407,6 +428,10 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
           addContact(x, entry, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
         }
+        block.fx += drag * (carried.x() - x.x());
+        block.fy += drag * (carried.y() - x.y());
+        block.fz += drag * (carried.z() - x.z());
+        block.addIsotropic(drag);
         if (newton == 0) residual_squared_[p] = block.forceSquared();
         block.addIsotropic(regularisation_[p]);
         Eigen::Vector3d step = block.step();
@@ -467,6 +492,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
 double BlockDescentSolver::residualOf(const ParticleState& state) {
   gatherContacts(state);
   const Eigen::Matrix3Xd& position = state.position;
+  const bool with_drag = state.carried_position.cols() == position.cols();
   double sum = 0;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::int32_t p = coloured_particles_[slot];
@@ -485,10 +511,124 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
       addContact(Eigen::Vector3d(position.col(p)), current, pair_kc, 1.0, block);
     }
+    if (with_drag) {
+      const Eigen::Vector3d pull = drag_weight_[p] * (state.carried_position.col(p) - position.col(p));
+      block.fx += pull.x();
+      block.fy += pull.y();
+      block.fz += pull.z();
+    }
     sum += block.forceSquared();
   }
   const double free_count = std::max<double>(1.0, static_cast<double>(coloured_particles_.size()));
   return std::sqrt(sum / free_count) / material_constant_n_;
+}
+
+void BlockDescentSolver::beginFrame(const ParticleState& state, double margin_m) {
+  entry_position_ = state.position;
+  drag_anchor_ = state.carried_position.cols() == state.position.cols() ? &state.carried_position : &entry_position_;
+  gatherContacts(state, margin_m);
+}
+
+namespace {
+// The pair stiffness both ends of a muscle-muscle contact use, or the particle's own against an obstacle.
+inline double entryStiffness(const ContactEntry& entry, double own, const Eigen::VectorXd& per_particle) {
+  return entry.partner >= 0 ? std::max(own, per_particle[entry.partner]) : own;
+}
+inline ContactEntry atPositions(const ContactEntry& entry, const Eigen::Matrix3Xd& position) {
+  ContactEntry current = entry;
+  if (entry.partner >= 0) current.centre = position.col(entry.partner);
+  return current;
+}
+}  // namespace
+
+double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
+  double energy = 0;
+  for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
+    const std::int32_t p = coloured_particles_[slot];
+    const Eigen::Vector3d x = position.col(p);
+    for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
+      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+      // A spring between two free particles is listed at both ends.
+      const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
+      energy += share * springEnergy(x, position.col(spring.other), spring.stiffness, spring.rest_length);
+    }
+    for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+      const double share = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)] ? 0.5 : 1.0;
+      energy += share * contactEnergy(x, atPositions(entry, position),
+                                      entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_));
+    }
+    energy += 0.5 * drag_weight_[p] * (x - drag_anchor_->col(p)).squaredNorm();
+  }
+  return energy;
+}
+
+void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Matrix3Xd& force,
+                                     std::vector<Eigen::Matrix3d>& inverse_blocks) const {
+  force.setZero(3, position.cols());
+  inverse_blocks.resize(static_cast<std::size_t>(position.cols()));
+#pragma omp parallel for num_threads(thread_count_) schedule(static)
+  for (std::int32_t slot = 0; slot < static_cast<std::int32_t>(coloured_particles_.size()); ++slot) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(slot)];
+    const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
+    Block block;
+    for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
+      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+      addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
+                spring.rest_length, block);
+    }
+    const Eigen::Vector3d x = position.col(p);
+    for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+      addContact(x, atPositions(entry, position),
+                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+    }
+    const double drag = drag_weight_[p];
+    const Eigen::Vector3d pull = drag * (drag_anchor_->col(p) - x);
+    block.fx += pull.x();
+    block.fy += pull.y();
+    block.fz += pull.z();
+    block.addIsotropic(drag + regularisation_[p]);
+    force.col(p) = Eigen::Vector3d(block.fx, block.fy, block.fz);
+    Eigen::Matrix3d hessian;
+    hessian << block.hxx, block.hxy, block.hxz, block.hxy, block.hyy, block.hyz, block.hxz, block.hyz, block.hzz;
+    inverse_blocks[static_cast<std::size_t>(p)] = hessian.inverse();
+  }
+}
+
+void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& direction,
+                                           Eigen::Matrix3Xd& product) const {
+  product.setZero(3, position.cols());
+#pragma omp parallel for num_threads(thread_count_) schedule(static)
+  for (std::int32_t slot = 0; slot < static_cast<std::int32_t>(coloured_particles_.size()); ++slot) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(slot)];
+    const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
+    const Eigen::Vector3d vp = direction.col(p);
+    Eigen::Vector3d sum = (drag_weight_[p] + regularisation_[p]) * vp;
+    const auto apply = [&](const Block& b, const Eigen::Vector3d& relative) {
+      sum.x() += b.hxx * relative.x() + b.hxy * relative.y() + b.hxz * relative.z();
+      sum.y() += b.hxy * relative.x() + b.hyy * relative.y() + b.hyz * relative.z();
+      sum.z() += b.hxz * relative.x() + b.hyz * relative.y() + b.hzz * relative.z();
+    };
+    for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
+      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+      Block block;
+      addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
+                spring.rest_length, block);
+      const bool other_free = !system_.is_fixed[static_cast<std::size_t>(spring.other)];
+      apply(block, other_free ? Eigen::Vector3d(vp - direction.col(spring.other)) : vp);
+    }
+    const Eigen::Vector3d x = position.col(p);
+    for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+      Block block;
+      addContact(x, atPositions(entry, position),
+                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+      const bool partner_free = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)];
+      apply(block, partner_free ? Eigen::Vector3d(vp - direction.col(entry.partner)) : vp);
+    }
+    product.col(p) = sum;
+  }
 }
 
 void BlockDescentSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
@@ -514,6 +654,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     throw std::invalid_argument("BlockDescentSolver: state has " + std::to_string(state.position.cols()) +
                                 " particles, the system " + std::to_string(n));
   entry_position_ = state.position;
+  drag_anchor_ = state.carried_position.cols() == n ? &state.carried_position : &entry_position_;
   const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
   const bool chebyshev = settings_.chebyshev_rho > 0;
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;
@@ -593,6 +734,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     state.previous_position = state.position;
     stats.collision_ms += millisecondsSince(pass_start);
   }
+  drag_anchor_ = nullptr;
   if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
   if (stats.diverged) {
     state.position = entry_position_;

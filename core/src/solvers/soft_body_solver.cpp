@@ -9,6 +9,7 @@ std::string toString(SolverKind kind) {
     case SolverKind::verlet: return "verlet";
     case SolverKind::local_global: return "local_global";
     case SolverKind::block_descent: return "block_descent";
+    case SolverKind::newton_krylov: return "newton_krylov";
   }
   return "unknown";
 }
@@ -17,7 +18,9 @@ SolverKind solverKindFromString(const std::string& name) {
   if (name == "verlet") return SolverKind::verlet;
   if (name == "local_global") return SolverKind::local_global;
   if (name == "block_descent") return SolverKind::block_descent;
-  throw std::invalid_argument("unknown solver kind '" + name + "' (expected verlet, local_global or block_descent)");
+  if (name == "newton_krylov") return SolverKind::newton_krylov;
+  throw std::invalid_argument("unknown solver kind '" + name +
+                              "' (expected verlet, local_global, block_descent or newton_krylov)");
 }
 
 }  // namespace muscle_deformation

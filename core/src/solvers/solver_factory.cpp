@@ -12,6 +12,8 @@ std::unique_ptr<SoftBodySolver> makeSolver(const SolverChoice& choice, const Mas
       return std::make_unique<LocalGlobalSolver>(system, choice.local_global);
     case SolverKind::block_descent:
       return std::make_unique<BlockDescentSolver>(system, choice.block_descent);
+    case SolverKind::newton_krylov:
+      return std::make_unique<NewtonKrylovSolver>(system, choice.block_descent, choice.newton_krylov);
   }
   throw std::invalid_argument("unknown solver kind " + std::to_string(static_cast<int>(choice.kind)));
 }

@@ -29,9 +29,9 @@ struct StreamSettings {
 // The ~deform_pose service solves single poses cold, where the streaming solve runs warm: the fastest solver for each
 // differs (docs/BENCHMARKS.md, "Fastest configuration per error target"), so the service has its own.
 struct ServiceSettings {
-  SolverKind solver_kind = SolverKind::local_global;  // ~service_solver
-  int lbfgs_history = 16;                             // ~service_lbfgs_history (local_global only)
-  int max_iterations = 120;                           // ~service_max_iterations (a request's max_iterations wins)
+  SolverKind solver_kind = SolverKind::block_descent;  // ~service_solver
+  int lbfgs_history = 16;                              // ~service_lbfgs_history (local_global only)
+  int max_iterations = 20;                             // ~service_max_iterations (a request's max_iterations wins)
   int max_queued = 4;                   // ~service_max_queued: calls that may wait while one solves; more are refused
   double warm_max_translation_m = 0.05;  // ~service_warm_max_translation_m: a warm start further away starts cold
   double warm_max_rotation_rad = 0.5;    // ~service_warm_max_rotation_rad

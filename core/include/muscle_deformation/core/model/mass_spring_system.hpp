@@ -56,6 +56,10 @@ struct MassSpringSystem {
 struct ParticleState {
   Eigen::Matrix3Xd position = Eigen::Matrix3Xd(3, 0);
   Eigen::Matrix3Xd previous_position = Eigen::Matrix3Xd(3, 0);  // Verlet: velocity = (x - x_prev) / dt
+  // Where the tissue around the muscles carries each particle this frame: the previous result moved with the bones
+  // (warm start) or the rigid pre-transform (cold). The tissue drag of block descent pulls towards it; empty: the
+  // position on entry to the solve. Solvers without drag ignore it.
+  Eigen::Matrix3Xd carried_position = Eigen::Matrix3Xd(3, 0);
 };
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon

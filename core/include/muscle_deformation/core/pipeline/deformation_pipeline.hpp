@@ -99,11 +99,14 @@ class DeformationPipeline {
   DeformationPipeline& operator=(const DeformationPipeline&) = delete;
 
   // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
+  // `frame_interval_s`: time since the pose a warm start continues (MuscleSimulation::solve).
   // The result is the pipeline's own (see FrameResult): the next solve overwrites it.
-  const FrameResult& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics);
+  const FrameResult& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics,
+                           double frame_interval_s = kNominalFrameIntervalS);
   // The same from bone transforms (boneTransformsOf(simulation().bones(), pose)), computed once per frame by callers
   // that also need them (the stream policy, the service's warm-start check).
-  const FrameResult& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics);
+  const FrameResult& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics,
+                           double frame_interval_s = kNominalFrameIntervalS);
   void reset() { simulation_->reset(); }
   // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,

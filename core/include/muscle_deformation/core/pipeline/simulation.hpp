@@ -35,7 +35,8 @@ struct SimulationSettings {
   StoppingSettings stopping;                    // shared by the solvers once shareStoppingRule copied it
   VerletSettings verlet;                        // for SolverKind::verlet
   LocalGlobalSettings local_global;             // for SolverKind::local_global
-  BlockDescentSettings block_descent;           // for SolverKind::block_descent
+  BlockDescentSettings block_descent;           // for SolverKind::block_descent (and newton_krylov's energy)
+  NewtonKrylovSettings newton_krylov;           // for SolverKind::newton_krylov
   CollisionSettings collision;
   bool collisions = true;  // false: the MSS alone (for comparisons)
 };
@@ -66,10 +67,12 @@ class MuscleSimulation {
   MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
                    const BoneFields& bone_fields = {});
 
-  FrameStats solve(const Pose& pose, StartMode start);
+  // `frame_interval_s`: the time since the pose a warm start continues (a stream's stamps), which weighs the tissue
+  // drag of block descent; a cold start uses kNominalFrameIntervalS.
+  FrameStats solve(const Pose& pose, StartMode start, double frame_interval_s = kNominalFrameIntervalS);
   // The same with the pose already turned into bone transforms (boneTransformsOf(bones(), pose)), for callers that
   // need them anyway: a frame computes them once.
-  FrameStats solve(const BoneTransforms& transforms, StartMode start);
+  FrameStats solve(const BoneTransforms& transforms, StartMode start, double frame_interval_s = kNominalFrameIntervalS);
   void reset();  // forget the previous result: the next solve starts cold
   // Continue from a known result instead of the last solve's: the next warm solve starts from `position` (a state of
   // this system) solved at `transforms`. Benchmarks start every compared stream from the same converged frame.
@@ -103,7 +106,12 @@ class MuscleSimulation {
   std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
   std::unique_ptr<CollisionWorld> collision_;
   std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields_;
+  bool tissueDrag() const;  // block descent with tissue_relaxation_s > 0
+
   ParticleState state_;
+  // The last frame's correction (its answer minus where the tissue carried it; zero after a cold start), which the next
+  // warm start carries on (BlockDescentSettings::predict_start).
+  Eigen::Matrix3Xd correction_;
   BoneTransforms previous_transforms_;
   bool has_previous_ = false;
 };

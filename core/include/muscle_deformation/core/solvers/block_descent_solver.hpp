@@ -1,11 +1,16 @@
 // Quasi-static block descent on the mass-spring energy, in the manner of Vertex Block Descent (Chen, Ibrahim, Yuksel,
 // SIGGRAPH 2024), with contacts as energy in the same solve.
 //
-// The answer of a solve is the equilibrium of the springs and contacts for the fixed particles of the pose: a
-// minimiser of
+// The answer of a solve is the equilibrium of the springs, contacts and tissue drag for the fixed particles of the
+// pose: the minimiser of
 //   E(x) = sum_springs k/2 (|x_a - x_b| - l0)^2 + sum_contacts kc/2 max(0, d - |x_p - c|)^2
-// over the free particles, reached from the state the solve starts in (the previous frame moved with the bones, or the
-// rigid pre-transform). A sweep visits every free particle once and moves it by one Newton step of its own 3 x 3
+//          + sum_free w_p/2 |x_p - y_p|^2
+// over the free particles, where y is where the tissue around the muscles carries each particle this frame (the
+// previous result moved with the bones, or the rigid pre-transform) and w_p = (tissue_relaxation_s / frame interval)
+// x the particle's summed spring stiffness: one implicit step of overdamped motion. Without the drag term the spring
+// energy of the bundled muscles is nearly flat along some shape changes (a slender muscle bending, a muscle swinging
+// on its tendon: 3e-6 of a particle's own stiffness), so its minimiser is neither unique nor reachable in a frame;
+// with it every frame has one answer, which the sweeps reach in a few steps. A sweep visits every free particle once and moves it by one Newton step of its own 3 x 3
 // problem (the other particles held), with each spring's Hessian projected to be positive semi-definite. Particles
 // are visited colour by colour (a greedy colouring of the spring graph), so the particles of one colour share no
 // spring and are updated in parallel; the result does not depend on the thread count. Contacts are found once per
@@ -47,6 +52,15 @@ struct BlockDescentSettings {
   // iteration, in [0, 1); 0 = off. Starts after chebyshev_delay sweeps of a solve.
   double chebyshev_rho = 0.0;
   int chebyshev_delay = 4;
+  // Tissue drag (s): the time constant with which a free particle pulled off the balance of its own springs returns to
+  // it through the tissue that holds it (see the formula above). 0 = none: the quasi-static equilibrium of springs and
+  // contacts alone (the analytic cases of the tests); the node's default is in nodeDefaultSettings().
+  double tissue_relaxation_s = 0.0;
+  // A warm frame starts from the previous frame's own correction (its answer minus where the tissue carried it)
+  // carried on with the bones, rather than from where the tissue carries it: over a smooth motion one frame's
+  // correction is close to the next one's, so the sweeps start near the answer. The answer does not change (the drag
+  // still pulls towards the carried position); MuscleSimulation applies it.
+  bool predict_start = true;
   // Worker threads for the sweeps. Positions do not depend on it. 0 = every core while that is faster: the sweeps'
   // wall times on one thread and on every core are measured as the solver runs (both are tried first, and the slower
   // again every kThreadProbeInterval sweeps), and each sweep runs on the faster. Every core stops paying once another
@@ -84,10 +98,16 @@ class BlockDescentSolver final : public SoftBodySolver {
   void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
                    const SolveLimits& limits) override;
   bool solvesContacts() const override { return true; }
+  // Clamped to [kMinFrameIntervalS, kMaxFrameIntervalS] (a pose stream's gaps, whatever their cause, give the tissue
+  // no more than a tenth of a second to relax in); kNominalFrameIntervalS until set.
+  void setFrameInterval(double seconds) override;
+  static constexpr double kMinFrameIntervalS = 1e-3, kMaxFrameIntervalS = 0.1;
+  double frameInterval() const { return frame_interval_s_; }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
 
   void setResidualTolerance(double relative_residual);
-  // The relative RMS net force (springs and contacts, as this solver models them) on the free particles at `state`,
+  // The relative RMS net force (springs, contacts and tissue drag towards state.carried_position when it is set, as
+  // this solver models them) on the free particles at `state`,
   // whichever solver produced it: the common measure of how far a state is from the equilibrium. Does not change the
   // state (uses the contact query).
   double residualOf(const ParticleState& state);
@@ -106,6 +126,26 @@ class BlockDescentSolver final : public SoftBodySolver {
   // Squared net force (N^2) on each particle when the last sweep visited it (0 for fixed particles).
   const Eigen::VectorXd& particleResidualsSquared() const { return residual_squared_; }
   const ContactSet& lastContacts() const { return contacts_; }
+
+  // The frame's energy seen as a whole, for a solver that moves every free particle at once on the same energy
+  // (NewtonKrylovSolver): beginFrame gathers the contacts at `state` within `margin_m` of touching (< 0: the sweeps'
+  // margin) and takes its carried positions as the drag anchor; the other calls then evaluate at any positions until
+  // endFrame. `state` must outlive the frame.
+  void beginFrame(const ParticleState& state, double margin_m = -1);
+  void endFrame() { drag_anchor_ = nullptr; }
+  double frameEnergy(const Eigen::Matrix3Xd& position) const;
+  // Net force (minus the gradient) on every particle (zero for fixed ones) and the inverse of each free particle's
+  // 3 x 3 block of the projected Hessian, by particle index.
+  void frameForces(const Eigen::Matrix3Xd& position, Eigen::Matrix3Xd& force,
+                   std::vector<Eigen::Matrix3d>& inverse_blocks) const;
+  // The projected Hessian at `position` times `direction` (rows of fixed particles zero; their directions unused).
+  void frameHessianTimes(const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& direction,
+                         Eigen::Matrix3Xd& product) const;
+  const std::vector<std::int32_t>& freeParticles() const { return free_particles_; }
+  double contactMargin() const { return contact_margin_m_; }
+  // Whether a particle's step is bounded by the contact margin (it collides).
+  bool boundedStep(std::int32_t particle) const { return bounded_step_[static_cast<std::size_t>(particle)] != 0; }
+  const ContactSet& frameContacts() const { return contacts_; }
 
   // One contact as a sweep reads it, gathered per particle (public for the sweep's inline helpers).
   struct ContactEntry {
@@ -129,7 +169,8 @@ class BlockDescentSolver final : public SoftBodySolver {
     double stiffness, rest_length;  // double: a spring at its rest length exerts exactly no force
   };
   void buildColouring();
-  void gatherContacts(const ParticleState& state);
+  void updateDragWeights();
+  void gatherContacts(const ParticleState& state, double margin_m = -1);  // < 0: contact_margin_m_
   // One sweep over every colour (or only the particles touching a contact); returns the summed squared residual force
   // and summed |step| of the free particles.
   void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum, int threads,
@@ -157,6 +198,10 @@ class BlockDescentSolver final : public SoftBodySolver {
   std::vector<std::int32_t> coloured_particles_;
   std::vector<std::int32_t> free_particles_;
   Eigen::VectorXd regularisation_;
+  Eigen::VectorXd spring_stiffness_sum_;  // per particle, N/m
+  Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
+  double frame_interval_s_ = kNominalFrameIntervalS;
+  const Eigen::Matrix3Xd* drag_anchor_ = nullptr;  // during a solve: where the tissue carries each particle
   Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m             // per particle, N/m: keeps every 3 x 3 block invertible
 
   ContactQuery contact_query_;

@@ -10,13 +10,22 @@
 
 namespace muscle_deformation {
 
+// The interval between frames when nothing else is known (a cold start, a single pose): the bundled gait's 60 Hz.
+constexpr double kNominalFrameIntervalS = 1.0 / 60.0;
+
 enum class SolverKind {
   verlet,        // damped Verlet (verlet_solver.hpp)
   local_global,  // local/global projective iterations (local_global_solver.hpp)
   block_descent, // per-particle Newton sweeps with contacts in the solve (block_descent_solver.hpp)
+  newton_krylov, // Newton steps on the same frame energy, solved by conjugate gradients (newton_krylov_solver.hpp)
 };
 std::string toString(SolverKind kind);
-// Accepts "verlet", "local_global", "block_descent"; throws std::invalid_argument otherwise.
+// Solvers that measure the force residual (the force_residual stopping rule, SolveStats::residual): block descent and
+// Newton-Krylov, on the same frame energy.
+inline bool measuresForceResidual(SolverKind kind) {
+  return kind == SolverKind::block_descent || kind == SolverKind::newton_krylov;
+}
+// Accepts "verlet", "local_global", "block_descent", "newton_krylov"; throws std::invalid_argument otherwise.
 SolverKind solverKindFromString(const std::string& name);
 
 class SoftBodySolver {
@@ -34,6 +43,9 @@ class SoftBodySolver {
   // the collision stage's contact query; the others ignore it. `every_particle_collides`: the query lists contacts of
   // interior particles too (a bone distance field), not only of boundary particles with a sphere radius.
   virtual bool solvesContacts() const { return false; }
+  // The time since the frame the solve continues (s). Solvers whose answer depends on it (block descent's tissue drag)
+  // weigh by it; the others ignore it.
+  virtual void setFrameInterval(double /*seconds*/) {}
   virtual void setContactQuery(ContactQuery, bool /*every_particle_collides*/) {}
 };
 

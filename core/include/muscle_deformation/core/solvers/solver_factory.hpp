@@ -3,6 +3,7 @@
 
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/solvers/newton_krylov_solver.hpp"
 #include "muscle_deformation/core/solvers/soft_body_solver.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
@@ -15,7 +16,8 @@ struct SolverChoice {
   SolverKind kind = SolverKind::verlet;
   VerletSettings verlet;
   LocalGlobalSettings local_global;
-  BlockDescentSettings block_descent;
+  BlockDescentSettings block_descent;  // also the frame energy and stopping rule of newton_krylov
+  NewtonKrylovSettings newton_krylov;
 };
 
 // Keeps a reference to `system`, which must outlive the solver. Build it after everything that changes the model

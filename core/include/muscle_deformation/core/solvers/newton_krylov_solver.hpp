@@ -1,0 +1,60 @@
+// Newton's method on the block-descent frame energy (springs, contacts, tissue drag: block_descent_solver.hpp), each
+// step solved by conjugate gradients preconditioned with the particles' own 3 x 3 blocks: a global solver of the same
+// problem the sweeps solve locally. It moves every particle at once along the Newton direction, so it shows that a
+// frame's answer does not depend on how it is reached, and it converges a frame to a force residual the sweeps take
+// far longer to reach (the reference the benchmarks measure against).
+#pragma once
+
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
+#include "muscle_deformation/core/solvers/soft_body_solver.hpp"
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace muscle_deformation {
+
+struct NewtonKrylovSettings {
+  int max_cg_iterations = 300;  // per Newton step
+  // A Newton step's linear solve stops at this fraction of its starting residual, or sooner relative to how far the
+  // frame still is from balance (the square root of the force residual over the first one): inexact Newton.
+  double cg_relative_tolerance = 0.1;
+};
+
+// Returns an empty string when the settings are usable, otherwise what is wrong.
+std::string validate(const NewtonKrylovSettings& settings);
+
+class NewtonKrylovSolver final : public SoftBodySolver {
+ public:
+  // `energy` settings: the block-descent settings that define the frame energy (contact stiffness and margin, tissue
+  // drag, threads) and how a solve stops (rule, caps, tolerances). Throws std::invalid_argument on invalid settings.
+  NewtonKrylovSolver(const MassSpringSystem& system, const BlockDescentSettings& energy, NewtonKrylovSettings settings);
+
+  SolverKind kind() const override { return SolverKind::newton_krylov; }
+  // Newton steps until the stopping rule is met (force_residual, iterations, displacement or time_budget; caps and
+  // limits as the other solvers). Each step: contacts gathered at the current state, the projected Hessian solved by
+  // preconditioned CG, then a backtracking line search on the frame energy with the contacts listed again within the
+  // step's reach when it carries a collidable particle beyond the sweeps' margin. A non-finite result
+  // puts the entry state back and reports `diverged`.
+  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
+  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
+                   const SolveLimits& limits) override;
+  bool solvesContacts() const override { return true; }
+  void setContactQuery(ContactQuery query, bool every_particle_collides) override;
+  void setFrameInterval(double seconds) override { energy_.setFrameInterval(seconds); }
+  void setResidualTolerance(double relative_residual) { energy_.setResidualTolerance(relative_residual); }
+
+  // Conjugate-gradient iterations of the last solve, over all its Newton steps.
+  int lastCgIterations() const { return last_cg_iterations_; }
+  double lastResidual() const { return last_residual_; }
+
+ private:
+  const MassSpringSystem& system_;
+  BlockDescentSolver energy_;  // the frame energy and its contacts; its sweeps are not used
+  NewtonKrylovSettings settings_;
+  double material_constant_n_ = 1.0;
+  int last_cg_iterations_ = 0;
+  double last_residual_ = 0;
+};
+
+}  // namespace muscle_deformation
