@@ -17,6 +17,7 @@ namespace bench {
 class GaitStream {
  public:
   static constexpr double kGaitRateHz = 60.0;  // the bundled gait's recording rate
+  static constexpr double kFrameIntervalS = 1.0 / kGaitRateHz;
 
   GaitStream(const std::vector<muscle_deformation::Bone>& bones, const muscle_deformation::PoseStreamSettings& settings)
       : stream_(muscle_deformation::boneRestCentroids(bones), settings) {}

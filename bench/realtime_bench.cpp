@@ -2,20 +2,23 @@
 // model and collision settings: the 1-cycle gait streamed frame by frame as the node does, and single poses solved
 // cold. Frame time is the solve (mass-spring system and collision), wall clock.
 //
-// References, converged by a force residual where the model allows it:
-//   stream: the converged stream. Frame 0 is solved cold, every later frame from the previous reference frame moved
-//           with the bones, each with kReferenceSweeps block-descent sweeps (two threads). Every compared stream starts
-//           from reference frame 0, so frames 1.. measure what a configuration does with one frame's time from the
-//           history it made itself.
+// What a frame's answer is (block_descent_solver.hpp): the minimiser of the springs, contacts and tissue drag towards
+// where the tissue carries each particle (the previous answer moved with the bones; cold: the rigid pre-transform).
+// References:
+//   stream: the converged stream. Frame 0 is solved cold, every later frame from the previous reference frame, each
+//           with kReferenceSweeps block-descent sweeps. Every compared stream starts from reference frame 0, so frames
+//           1.. measure what a configuration does with one frame's time from the history it made itself.
 //   cold:   five gait poses (paper frames), each with 2 x kReferenceSweeps sweeps from its rigid pre-transform.
-// How converged the references are is measured and written too: their force residual, and how far a reference frame
-// still moves when given as many sweeps again.
+// How converged the references are is measured and written too: their force residual, how far the same frame ends
+// with twice the sweeps from another start, and how far the Newton-Krylov solver's answer of the same frame from the
+// same start lies from it (a global solver against the local sweeps: the frame has one answer).
 //
 // Every state is also measured by one common yardstick, the relative RMS net force on the free particles under the
-// springs and the block-descent contact energy (BlockDescentSolver::residualOf), whichever solver produced it.
+// springs, the block-descent contact energy and the node's tissue drag (BlockDescentSolver::residualOf), whichever
+// solver produced it; solvers without drag are judged by the same yardstick.
 //
 // Writes out/bench/realtime.json: one object per (scene, mode, configuration) with the keys the real-time issue asks
-// for, plus the references' own figures (solver "reference").
+// for, plus the references' own figures (solver "reference") and the solver agreement (solver "agreement").
 //
 //   realtime_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
@@ -44,8 +47,11 @@ struct Config {
   StoppingRule rule = StoppingRule::iterations;
   int max_iterations = 1;
   double time_budget_ms = 0;
+  double residual_tolerance = 0;  // force_residual rule
   int lbfgs_history = 0;
   int threads = 1;
+  double tissue_relaxation_s = -1;  // < 0: the node's
+  bool predict_start = true;
   bool node_default = false;
 };
 
@@ -57,11 +63,15 @@ SimulationSettings settingsFor(const SimulationSettings& defaults, const Config&
   settings.stopping.time_budget_ms = config.time_budget_ms;
   settings.stopping.limits = {};
   shareStoppingRule(settings);
+  if (config.rule == StoppingRule::force_residual) settings.block_descent.residual_tolerance = config.residual_tolerance;
   settings.local_global.lbfgs_history = config.lbfgs_history;
   settings.block_descent.threads = config.threads;
+  if (config.tissue_relaxation_s >= 0) settings.block_descent.tissue_relaxation_s = config.tissue_relaxation_s;
+  settings.block_descent.predict_start = config.predict_start;
   return settings;
 }
 
+// Block descent with the node's tissue drag and predicted start.
 Config blockDescent(int sweeps, int threads) {
   Config config;
   config.label = "block_descent " + std::to_string(sweeps) + (sweeps == 1 ? " sweep" : " sweeps");
@@ -78,7 +88,8 @@ struct Measured {
   int iterations = 0;
 };
 
-// The common yardstick (residualOf) for one simulation's states, with the simulation's own contacts.
+// The common yardstick (residualOf) for one simulation's states, with the simulation's own contacts and the node's
+// tissue drag.
 BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockDescentSettings& settings) {
   BlockDescentSolver yardstick(simulation.system(), settings);
   const CollisionWorld* world = simulation.collisionWorld();
@@ -91,15 +102,18 @@ BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockD
   return yardstick;
 }
 
-// One solved frame or pose against its reference.
+// One solved frame or pose against its reference. `carried`: where the tissue carried the particles in this frame
+// (the reference's own problem, whatever the configuration solved).
 Measured measured(MuscleSimulation& simulation, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
-                  BlockDescentSolver& yardstick) {
+                  const Eigen::Matrix3Xd& carried, BlockDescentSolver& yardstick) {
   Measured m;
   m.frame_ms = stats.solver.total_ms;
   m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference);
   m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
   m.iterations = stats.solver.iterations;
-  m.residual = yardstick.residualOf(simulation.state());
+  ParticleState judged = simulation.state();
+  judged.carried_position = carried;
+  m.residual = yardstick.residualOf(judged);
   return m;
 }
 
@@ -131,7 +145,8 @@ double elapsedSeconds() {
 }
 
 void record(bench::JsonRecords& records, const std::string& scene, const std::string& mode, const Config& config,
-            const Summary& s, int particles) {
+            const SimulationSettings& settings, const Summary& s, int particles) {
+  const bool drag = measuresForceResidual(config.kind) && settings.block_descent.tissue_relaxation_s > 0;
   records.begin();
   records.add("scene", scene);
   records.add("mode", mode);
@@ -145,10 +160,12 @@ void record(bench::JsonRecords& records, const std::string& scene, const std::st
   records.add("rms_mm_max", s.rms_mm_max);
   records.add("bone_penetration_max_mm", s.bone_penetration_max_mm);
   records.add("residual_median", s.residual_median);
+  records.add("tissue_relaxation_s", drag ? settings.block_descent.tissue_relaxation_s : 0.0);
+  records.add("predict_start", drag && settings.block_descent.predict_start ? 1.0 : 0.0);
   records.add("node_default", config.node_default ? 1.0 : 0.0);
   records.add("particles", static_cast<double>(particles));
   records.end();
-  std::printf("[%6.1f s] %-7s %-6s %-34s threads %d: frame %6.1f ms median, %6.1f max; RMS to reference %.3f mean, "
+  std::printf("[%6.1f s] %-7s %-6s %-44s threads %d: frame %6.1f ms median, %6.1f max; RMS to reference %.3f mean, "
               "%.3f max mm; bone penetration %.2f mm; residual %.2e; %.1f iterations%s\n",
               elapsedSeconds(), scene.c_str(), mode.c_str(), config.label.c_str(), config.threads, s.frame_ms_median,
               s.frame_ms_max, s.rms_mm_mean, s.rms_mm_max, s.bone_penetration_max_mm, s.residual_median,
@@ -178,27 +195,41 @@ int main(int argc, char** argv) {
   node_default.time_budget_ms = defaults.stopping.time_budget_ms;
   node_default.lbfgs_history = defaults.local_global.lbfgs_history;
   node_default.threads = defaults.block_descent.threads;
+  node_default.predict_start = defaults.block_descent.predict_start;
   node_default.node_default = true;
   std::vector<Config> stream_configs;
   {
     Config verlet;
-    verlet.label = "verlet 30 iterations";
+    verlet.label = "verlet 30 iterations (former default)";
     verlet.kind = SolverKind::verlet;
     verlet.max_iterations = 30;
     stream_configs.push_back(verlet);
-    for (const int sweeps : {1, 2, 4})
+    Config quasi_static = blockDescent(1, 0);
+    quasi_static.label = "block_descent 1 sweep, no drag (former default)";
+    quasi_static.tissue_relaxation_s = 0;
+    stream_configs.push_back(quasi_static);
+    Config unpredicted = blockDescent(1, 2);
+    unpredicted.label = "block_descent 1 sweep, drag, start not predicted";
+    unpredicted.predict_start = false;
+    stream_configs.push_back(unpredicted);
+    for (const int sweeps : {1, 2})
       for (const int threads : {1, 2}) stream_configs.push_back(blockDescent(sweeps, threads));
     stream_configs.push_back(node_default);
   }
   std::vector<Config> cold_configs;
   {
-    for (const int sweeps : {10, 30, 100}) cold_configs.push_back(blockDescent(sweeps, 0));
+    for (const int sweeps : {10, 20, 30}) {
+      Config config = blockDescent(sweeps, 0);
+      // The service's defaults (service_solver, service_max_iterations in config/muscle_deformation.yaml; the node
+      // caps a call's threads so that the stream keeps a core, which this single-pose bench does not need).
+      config.node_default = sweeps == 20;
+      cold_configs.push_back(config);
+    }
     Config service;
-    service.label = "local_global lbfgs16 120 iterations";
+    service.label = "local_global lbfgs16 120 iterations, no drag (former service default)";
     service.kind = SolverKind::local_global;
     service.max_iterations = 120;
     service.lbfgs_history = 16;
-    service.node_default = true;  // the service's defaults (service_solver, service_lbfgs_history, ..._max_iterations)
     cold_configs.push_back(service);
   }
 
@@ -210,34 +241,59 @@ int main(int argc, char** argv) {
     // ----- stream -----
     Config reference_config = blockDescent(reference_sweeps, 0);
     reference_config.label = "reference";
-    std::vector<Eigen::Matrix3Xd> reference;
+    const SimulationSettings reference_settings = settingsFor(defaults, reference_config);
+    std::vector<Eigen::Matrix3Xd> reference, carried;
     std::vector<BoneTransforms> transforms;
     std::vector<double> reference_residuals;
-    double reference_moves_mm = 0;  // largest RMS a reference frame still moves with as many sweeps again
+    double reference_moves_mm = 0;  // largest RMS between a reference frame and the same frame given twice the sweeps
     int particles = 0;
     {
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, reference_config));
+      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, reference_settings);
+      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
       particles = static_cast<int>(simulation.system().particleCount());
       for (std::size_t f = 0; f < frame_count; ++f) {
         transforms.push_back(boneTransformsOf(simulation.bones(), gaitPose(bundled, f)));
-        const FrameStats stats = simulation.solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm);
+        simulation.solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm);
         reference.push_back(simulation.state().position);
-        reference_residuals.push_back(stats.solver.residual);
+        carried.push_back(simulation.state().carried_position);
+        reference_residuals.push_back(yardstick.residualOf(simulation.state()));
       }
-      // How settled the references are: a few frames given as many sweeps again.
+      // How settled the references are: a few frames given as many sweeps again, and the same frames solved from the
+      // same start by the Newton-Krylov solver (a global method; the sweeps are local).
+      Config newton_config = reference_config;
+      newton_config.kind = SolverKind::newton_krylov;
+      newton_config.rule = StoppingRule::force_residual;
+      newton_config.residual_tolerance = 1e-3;
+      newton_config.max_iterations = options.quick ? 10 : 40;
+      MuscleSimulation newton(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, newton_config),
+                              simulation.boneFields());
+      Config twice_config = blockDescent(2 * reference_sweeps, 0);
+      MuscleSimulation twice(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, twice_config),
+                             simulation.boneFields());
+      std::vector<double> agreement_rms, agreement_max, newton_residual, newton_ms;
       for (const std::size_t f : {frame_count / 4, frame_count / 2, (3 * frame_count) / 4}) {
         if (f == 0) continue;
-        simulation.continueFrom(transforms[f - 1], reference[f - 1]);
-        simulation.solve(transforms[f], StartMode::warm);  // reproduces reference[f]
-        simulation.continueFrom(transforms[f], simulation.state().position);
-        simulation.solve(transforms[f], StartMode::warm);  // as many sweeps again
-        reference_moves_mm = std::max(reference_moves_mm, bench::rmsMillimetres(simulation.state().position, reference[f]));
+        // The same frame problem (the tissue carrying the previous reference frame) with twice the sweeps, from the
+        // unpredicted start.
+        twice.continueFrom(transforms[f - 1], reference[f - 1]);
+        twice.solve(transforms[f], StartMode::warm);
+        reference_moves_mm = std::max(reference_moves_mm, bench::rmsMillimetres(twice.state().position, reference[f]));
+        newton.continueFrom(transforms[f - 1], reference[f - 1]);
+        const FrameStats stats = newton.solve(transforms[f], StartMode::warm);
+        agreement_rms.push_back(bench::rmsMillimetres(newton.state().position, reference[f]));
+        agreement_max.push_back(1e3 * (newton.state().position - reference[f]).colwise().norm().maxCoeff());
+        newton_residual.push_back(yardstick.residualOf(newton.state()));
+        newton_ms.push_back(stats.solver.total_ms);
       }
       std::printf("[%6.1f s] %s: %d particles, stream reference of %zu frames, %d sweeps each: residual median %.2e, "
-                  "max %.2e; a frame given as many sweeps again moves up to %.2f mm RMS\n",
+                  "max %.2e; the same frame given twice the sweeps from another start ends up to %.3f mm RMS from it; Newton-Krylov from the same "
+                  "start ends %.3f mm RMS (%.3f max) from it, residual %.2e\n",
                   elapsedSeconds(), scene_name.c_str(), particles, frame_count, reference_sweeps,
                   bench::median(reference_residuals),
-                  *std::max_element(reference_residuals.begin(), reference_residuals.end()), reference_moves_mm);
+                  *std::max_element(reference_residuals.begin(), reference_residuals.end()), reference_moves_mm,
+                  *std::max_element(agreement_rms.begin(), agreement_rms.end()),
+                  *std::max_element(agreement_max.begin(), agreement_max.end()),
+                  *std::max_element(newton_residual.begin(), newton_residual.end()));
       records.begin();
       records.add("scene", scene_name);
       records.add("mode", "stream");
@@ -247,37 +303,55 @@ int main(int argc, char** argv) {
       records.add("reference_residual_median", bench::median(reference_residuals));
       records.add("reference_residual_max", *std::max_element(reference_residuals.begin(), reference_residuals.end()));
       records.add("reference_moves_mm", reference_moves_mm);
+      records.add("tissue_relaxation_s", reference_settings.block_descent.tissue_relaxation_s);
       records.add("particles", static_cast<double>(particles));
+      records.end();
+      records.begin();
+      records.add("scene", scene_name);
+      records.add("mode", "stream");
+      records.add("solver", "agreement");
+      records.add("frames", static_cast<double>(agreement_rms.size()));
+      records.add("newton_rms_mm_max", *std::max_element(agreement_rms.begin(), agreement_rms.end()));
+      records.add("newton_max_mm", *std::max_element(agreement_max.begin(), agreement_max.end()));
+      records.add("newton_residual_max", *std::max_element(newton_residual.begin(), newton_residual.end()));
+      records.add("newton_ms_median", bench::median(newton_ms));
+      records.add("newton_iterations_cap", static_cast<double>(newton_config.max_iterations));
       records.end();
     }
 
     for (const Config& config : stream_configs) {
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, config));
-      BlockDescentSolver yardstick = yardstickFor(simulation, defaults.block_descent);
+      const SimulationSettings settings = settingsFor(defaults, config);
+      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
+      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
       simulation.continueFrom(transforms[0], reference[0]);
       bench::GaitStream stream(simulation.bones(), node.stream);
       stream.solved(0, transforms[0]);
       std::vector<Measured> rows;
       for (std::size_t f = 1; f < frame_count; ++f) {
         const StartMode start = stream.start(f, transforms[f]);
-        rows.push_back(measured(simulation, simulation.solve(transforms[f], start), reference[f], yardstick));
+        const FrameStats stats = simulation.solve(transforms[f], start, bench::GaitStream::kFrameIntervalS);
+        // Judged against the reference frame's problem: the tissue carrying the reference's previous frame.
+        rows.push_back(measured(simulation, stats, reference[f], carried[f], yardstick));
         stream.solved(f, transforms[f]);
       }
-      record(records, scene_name, "stream", config, summarise(rows), particles);
+      record(records, scene_name, "stream", config, settings, summarise(rows), particles);
     }
 
     // ----- cold single poses -----
     const std::vector<std::size_t> poses = options.quick ? std::vector<std::size_t>{fiveGaitFrames(bundled)[2]}
                                                          : fiveGaitFrames(bundled);
-    std::vector<Eigen::Matrix3Xd> cold_reference;
+    std::vector<Eigen::Matrix3Xd> cold_reference, cold_carried;
     {
       Config cold_reference_config = blockDescent(2 * reference_sweeps, 0);
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, cold_reference_config));
+      const SimulationSettings settings = settingsFor(defaults, cold_reference_config);
+      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
+      BlockDescentSolver yardstick = yardstickFor(simulation, settings.block_descent);
       std::vector<double> residuals;
       for (const std::size_t f : poses) {
-        const FrameStats stats = simulation.solve(gaitPose(bundled, f), StartMode::cold);
+        simulation.solve(gaitPose(bundled, f), StartMode::cold);
         cold_reference.push_back(simulation.state().position);
-        residuals.push_back(stats.solver.residual);
+        cold_carried.push_back(simulation.state().carried_position);
+        residuals.push_back(yardstick.residualOf(simulation.state()));
       }
       records.begin();
       records.add("scene", scene_name);
@@ -287,17 +361,19 @@ int main(int argc, char** argv) {
       records.add("frames", static_cast<double>(poses.size()));
       records.add("reference_residual_median", bench::median(residuals));
       records.add("reference_residual_max", *std::max_element(residuals.begin(), residuals.end()));
+      records.add("tissue_relaxation_s", settings.block_descent.tissue_relaxation_s);
       records.add("particles", static_cast<double>(particles));
       records.end();
     }
     for (const Config& config : cold_configs) {
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, config));
-      BlockDescentSolver yardstick = yardstickFor(simulation, defaults.block_descent);
+      const SimulationSettings settings = settingsFor(defaults, config);
+      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
+      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
       std::vector<Measured> rows;
       for (std::size_t k = 0; k < poses.size(); ++k)
         rows.push_back(measured(simulation, simulation.solve(gaitPose(bundled, poses[k]), StartMode::cold),
-                                cold_reference[k], yardstick));
-      record(records, scene_name, "cold", config, summarise(rows), particles);
+                                cold_reference[k], cold_carried[k], yardstick));
+      record(records, scene_name, "cold", config, settings, summarise(rows), particles);
     }
   }
 
