@@ -28,8 +28,9 @@ SimulationSettings smallSettings(SolverKind kind) {
 TEST(SolverFactory, BuildsTheKindAskedAndNamesIt) {
   const SyntheticScene scene = makeSyntheticThigh(1, 4);
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{});
-  for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent}) {
-    const std::unique_ptr<SoftBodySolver> solver = makeSolver(SolverChoice{kind, {}, {}, {}}, system);
+  for (const SolverKind kind :
+       {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent, SolverKind::newton_krylov}) {
+    const std::unique_ptr<SoftBodySolver> solver = makeSolver(SolverChoice{kind, {}, {}, {}, {}}, system);
     ASSERT_NE(solver, nullptr);
     EXPECT_EQ(solver->kind(), kind);
     EXPECT_EQ(solverKindFromString(toString(kind)), kind);
@@ -47,7 +48,7 @@ TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStar
     ParticleState state = restState(system);
     rigidPretransform(system, boneTransformsOf(scene.bones, pose), state);
     const std::unique_ptr<SoftBodySolver> solver =
-        makeSolver(SolverChoice{kind, settings.verlet, settings.local_global}, system);
+        makeSolver(SolverChoice{kind, settings.verlet, settings.local_global, {}, {}}, system);
     const SolveStats direct = solver->solve(state);
 
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);

@@ -61,7 +61,6 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
   std::vector<Eigen::Matrix3d> inverse_blocks;
   last_cg_iterations_ = 0;
   last_residual_ = 0;
-  double first_force_norm = -1;
 
   for (int iteration = 0; iteration < rule.max_iterations; ++iteration) {
     auto phase_start = Clock::now();
@@ -71,7 +70,6 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
     phase_start = Clock::now();
     energy_.frameForces(state.position, force, inverse_blocks);
     const double force_norm = std::sqrt(dot(free, force, force));
-    if (first_force_norm < 0) first_force_norm = force_norm;
     last_residual_ = force_norm / std::sqrt(free_count) / material_constant_n_;
     if (!std::isfinite(last_residual_)) {
       stats.diverged = true;
@@ -84,9 +82,8 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
       break;
     }
 
-    // Inexact Newton: H step = force by block-preconditioned CG, to a tolerance that tightens as the frame settles.
-    const double tolerance =
-        std::min(settings_.cg_relative_tolerance, std::sqrt(force_norm / std::max(first_force_norm, 1e-300)));
+    // Newton: H step = force by block-preconditioned CG.
+    const double tolerance = settings_.cg_relative_tolerance;
     step.setZero(3, n);
     residual = force;
     preconditioned.setZero(3, n);
