@@ -480,13 +480,15 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       position.col(p) = x;
     }
   }
-  // Sums in particle order, so they do not depend on the thread count either.
-  residual_squared_sum = 0;
-  displacement_sum = 0;
+  // Sums in particle order, so they do not depend on the thread count either (in locals: the references might alias
+  // the arrays as far as the compiler knows).
+  double residual_sum = 0, step_sum = 0;
   for (const std::int32_t p : free_particles_) {
-    residual_squared_sum += residual_squared_[p];
-    displacement_sum += step_length_[p];
+    residual_sum += residual_squared_[p];
+    step_sum += step_length_[p];
   }
+  residual_squared_sum = residual_sum;
+  displacement_sum = step_sum;
 }
 
 double BlockDescentSolver::residualOf(const ParticleState& state) {
