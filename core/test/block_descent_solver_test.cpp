@@ -16,6 +16,7 @@
 #include <cmath>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::converging;
 using muscle_deformation::testing::stateAt;
 
 namespace {
@@ -52,13 +53,6 @@ MassSpringSystem latticeBlock() {
   return system;
 }
 
-BlockDescentSettings converging(int max_iterations, double tolerance) {
-  BlockDescentSettings settings;
-  settings.stopping_rule = StoppingRule::force_residual;
-  settings.max_iterations = max_iterations;
-  settings.residual_tolerance = tolerance;
-  return settings;
-}
 
 }  // namespace
 

@@ -10,19 +10,8 @@
 #include <gtest/gtest.h>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::converging;
 using muscle_deformation::testing::stateAt;
-
-namespace {
-
-BlockDescentSettings converging(int max_iterations, double tolerance) {
-  BlockDescentSettings settings;
-  settings.stopping_rule = StoppingRule::force_residual;
-  settings.max_iterations = max_iterations;
-  settings.residual_tolerance = tolerance;
-  return settings;
-}
-
-}  // namespace
 
 TEST(NewtonKrylov, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
   // Five unit springs (1 N material) between ends fixed 6 m apart: every spring at 1.2 m.

@@ -3,6 +3,7 @@
 
 #include "muscle_deformation/core/geometry.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 
 #include <gtest/gtest.h>
 
@@ -26,6 +27,16 @@ inline TriangleMesh unitCube() {
     mesh.triangles.col(2 * f + 1) << quads[f][0], quads[f][2], quads[f][3];
   }
   return mesh;
+}
+
+// Block-descent settings (also Newton-Krylov's energy) that run until the force residual falls below `tolerance`,
+// at most `max_iterations` iterations.
+inline BlockDescentSettings converging(int max_iterations, double tolerance) {
+  BlockDescentSettings settings;
+  settings.stopping_rule = StoppingRule::force_residual;
+  settings.max_iterations = max_iterations;
+  settings.residual_tolerance = tolerance;
+  return settings;
 }
 
 // A state at `positions` with zero velocity.
