@@ -53,7 +53,6 @@ MassSpringSystem latticeBlock() {
   return system;
 }
 
-
 }  // namespace
 
 TEST(BlockDescent, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
