@@ -2,7 +2,9 @@
 """make demo: the bundled 1-cycle gait through the node, headless.
 
 Starts a virtual X server (Xvfb) and launch/gait_playback.launch with rviz on its own ROS master port, records every
-~stats message into <out>/stats.csv, pauses the bag at mid-stance to take <out>/rviz.png, then prints a summary.
+~stats message into <out>/stats.csv (one row per frame) and its per-muscle figures into <out>/muscles.csv (one row per
+frame and muscle), pauses the bag at mid-stance to take <out>/rviz.png, then writes the per-muscle fidelity table
+<out>/muscles.md and the plot of volume error over the gait <out>/volume_error.png, and prints a summary.
 Exit status 0 only if every pose of the bag was solved and no frame had non-finite positions.
 Run from a shell where the workspace's devel/setup.bash is sourced (the Makefile does it)."""
 import argparse
@@ -111,7 +113,9 @@ def record(args, stamps, screenshot_stamp, bag_rate_hz, launch):
         print("demo: the node or the bag player did not come up; see out/demo/roslaunch.log")
         return 1
     frames = []
-    fields = [f for f in DeformationStats.__slots__ if f != "header"]
+    # Scalars go to stats.csv, one column each; the per-muscle arrays (muscle_*) to muscles.csv.
+    list_fields = [f for f, kind in zip(DeformationStats.__slots__, DeformationStats._slot_types) if kind.endswith("[]")]
+    fields = [f for f in DeformationStats.__slots__ if f != "header" and f not in list_fields]
 
     def on_stats(message):
         frames.append(message)
@@ -141,7 +145,83 @@ def record(args, stamps, screenshot_stamp, bag_rate_hz, launch):
         writer.writerow(["stamp_s"] + fields)
         for frame in frames:
             writer.writerow([f"{frame.header.stamp.to_sec():.6f}"] + [getattr(frame, f) for f in fields])
+    per_muscle = [f for f in list_fields if f != "muscle_names"]
+    with open(os.path.join(args.out, "muscles.csv"), "w", newline="") as out:
+        writer = csv.writer(out)
+        writer.writerow(["stamp_s", "muscle"] + per_muscle)
+        for frame in frames:
+            for m, name in enumerate(frame.muscle_names):
+                writer.writerow([f"{frame.header.stamp.to_sec():.6f}", name] + [getattr(frame, f)[m] for f in per_muscle])
+    write_muscle_table(args.out, frames)
+    plot_volume_error(args.out, frames)
     return summarize(args, frames, stamps, bag_rate_hz, shot_taken)
+
+
+def muscle_series(frames):
+    """Per muscle (in simulation order), its figures over the frames that measured them: name -> field -> list."""
+    series = {}
+    for frame in frames:
+        for m, name in enumerate(frame.muscle_names):
+            figures = series.setdefault(name, {"stamp_s": [], "volume": [], "skinned": [], "surface": [], "particle": []})
+            figures["stamp_s"].append(frame.header.stamp.to_sec())
+            figures["volume"].append(frame.muscle_volume_error_pct[m])
+            figures["skinned"].append(frame.muscle_skinned_volume_error_pct[m])
+            figures["surface"].append(frame.muscle_max_surface_inside_bone_m[m])
+            figures["particle"].append(frame.muscle_max_particle_inside_bone_m[m])
+    return series
+
+
+def write_muscle_table(out, frames):
+    """<out>/muscles.md: per muscle over the gait, its volume error (as shown and as skinned before the volume
+    constraint) and how deep its surface and its particles went into a bone."""
+    series = muscle_series(frames)
+    path = os.path.join(out, "muscles.md")
+    with open(path, "w") as table:
+        if not series:
+            table.write("No frame measured the per-muscle figures (see the stats' surface_metrics_absent_reason).\n")
+            return
+        measured = sum(1 for f in frames if f.muscle_names)
+        table.write(f"Per-muscle fidelity over the gait ({measured} of {len(frames)} frames measured). Volume error: "
+                    "|volume - rest volume| / rest volume of the surface shown; *skinned*: of the skinned surface before "
+                    "the volume constraint restored it. Depths: deepest surface vertex / particle inside a bone (its "
+                    "distance field).\n\n")
+        table.write("| muscle | volume error mean / max % | skinned mean / max % | surface in bone max mm | "
+                    "particle in bone max mm |\n|---|---|---|---|---|\n")
+        for name, figures in series.items():
+            volume = [abs(v) for v in figures["volume"]]
+            skinned = [abs(v) for v in figures["skinned"]]
+            table.write(f"| {name} | {statistics.mean(volume):.2f} / {max(volume):.2f} | "
+                        f"{statistics.mean(skinned):.2f} / {max(skinned):.2f} | {1000 * max(figures['surface']):.2f} | "
+                        f"{1000 * max(figures['particle']):.2f} |\n")
+
+
+def plot_volume_error(out, frames):
+    """<out>/volume_error.png: each muscle's signed volume error over the gait, as skinned (thin) and as shown."""
+    series = muscle_series(frames)
+    if not series:
+        return
+    import matplotlib
+    matplotlib.use("Agg")  # no display needed
+    import matplotlib.pyplot as plt
+    start = min(min(f["stamp_s"]) for f in series.values())
+    figure, (shown, skinned) = plt.subplots(1, 2, figsize=(13, 5), sharex=True)
+    colours = plt.get_cmap("tab20", len(series))
+    for i, (name, figures) in enumerate(series.items()):
+        time_s = [t - start for t in figures["stamp_s"]]
+        shown.plot(time_s, figures["volume"], color=colours(i), linewidth=1)
+        skinned.plot(time_s, figures["skinned"], color=colours(i), linewidth=1, label=name)
+    shown.set_title("surface shown (volume constraint on)")
+    skinned.set_title("skinned surface before the volume constraint")
+    for axes in (shown, skinned):
+        axes.set_xlabel("gait time (s)")
+        axes.set_ylabel("volume error (%)")
+        axes.axhline(0, color="black", linewidth=0.5)
+        axes.grid(alpha=0.3)
+    skinned.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    figure.suptitle("Per-muscle volume error over the bundled gait (make demo)")
+    figure.tight_layout()
+    figure.savefig(os.path.join(out, "volume_error.png"), dpi=110)
+    plt.close(figure)
 
 
 def take_screenshot(out, SetBool):
@@ -196,7 +276,18 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken):
     if metrics:
         print(f"volume error               mean {statistics.mean(f.volume_error_mean_pct for f in metrics):.2f} %, "
               f"max {max(f.volume_error_max_pct for f in metrics):.2f} % ({len(metrics)} of {len(frames)} frames)")
-        print(f"surface inside bone        max {1000 * max(f.max_surface_inside_bone_m for f in metrics):.2f} mm")
+        skinned = [[abs(v) for v in f.muscle_skinned_volume_error_pct] for f in metrics if f.muscle_skinned_volume_error_pct]
+        if skinned:
+            print(f"  skinned, before the volume constraint: mean {statistics.mean(statistics.mean(v) for v in skinned):.2f} %, "
+                  f"max {max(max(v) for v in skinned):.2f} %")
+        deepest = max(metrics, key=lambda f: f.max_surface_inside_bone_m)
+        print(f"surface inside bone        max {1000 * deepest.max_surface_inside_bone_m:.2f} mm"
+              + (f" ({deepest.max_surface_inside_bone_muscle} in {deepest.max_surface_inside_bone_bone})"
+                 if deepest.max_surface_inside_bone_muscle else ""))
+        deepest = max(metrics, key=lambda f: f.max_particle_inside_bone_m)
+        print(f"particles inside bone      max {1000 * deepest.max_particle_inside_bone_m:.2f} mm"
+              + (f" ({deepest.max_particle_inside_bone_muscle} in {deepest.max_particle_inside_bone_bone})"
+                 if deepest.max_particle_inside_bone_muscle else "") + " (bone fields)")
     else:
         print(f"volume error               not measured ({last.surface_metrics_absent_reason})")
     collided = [f for f in frames if f.has_collision_metrics]
@@ -205,7 +296,7 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken):
               f"muscle {1000 * max(f.max_penetration_sphere_muscle_m for f in collided):.2f} mm")
     else:
         print(f"max sphere penetration     not measured ({last.collision_absent_reason})")
-    print(f"outputs                    {args.out}/stats.csv, {args.out}/rviz.png "
+    print(f"outputs                    {args.out}/stats.csv, muscles.csv, muscles.md, volume_error.png, rviz.png "
           f"({'taken' if shot_taken else 'MISSING'})")
     ok = finite and last.poses_solved == len(stamps) and last.poses_received == len(stamps)
     print("demo: OK, every frame solved without NaN" if ok else

@@ -178,6 +178,33 @@ TEST(DeformationMetrics, TheInsideBoneCountFromTheBonesFieldIsTheExactTestsAwayF
   EXPECT_NEAR(scene.max_inside_bone_depth_m, exact_deepest, 1e-4);
 }
 
+TEST(DeformationMetrics, CountsParticlesInsideABoneWithTheirDepthButNotATendonsBoneAnchor) {
+  // A fibre through a bone-sized ball (radius 25 mm): its particles at z = +-15 mm lie 10 mm deep, the two at +-30 mm
+  // outside. A fifth particle at the ball's centre is a tendon's anchor, the bone's own point: not a muscle particle.
+  Eigen::Matrix3Xd particles(3, 5);
+  particles << 0, 0, 0, 0, 0,  //
+      0, 0, 0, 0, 0,           //
+      -0.03, -0.015, 0.015, 0.03, 0;
+  md::MassSpringSystem system = oneFibreSystem(particles);
+  system.fibre_of[4] = md::kTendonAnchor;
+  const md::Bone bone{0, "ball", md::makeSphereMesh(Eigen::Vector3d::Zero(), 0.025, 4)};
+  const md::DeformationMetrics metrics({bone}, {cubeMuscle()}, system);
+
+  const md::SceneMetrics scene = metrics.measure({unitCube().vertices}, system.rest_position, {});
+  EXPECT_EQ(scene.muscles[0].particles_inside_bone, 2);
+  EXPECT_EQ(scene.particles_inside_bone, 2);
+  EXPECT_NEAR(scene.muscles[0].max_particle_inside_bone_depth_m, 0.010, 2e-4);  // the mesh is inscribed in the ball
+  EXPECT_EQ(scene.max_particle_inside_bone_depth_m, scene.muscles[0].max_particle_inside_bone_depth_m);
+  EXPECT_EQ(scene.muscles[0].deepest_particle_bone, "ball");
+
+  // The same particles with the bone moved 1 m away by the pose: none inside, depth 0, no bone named.
+  const md::SceneMetrics moved =
+      metrics.measure({unitCube().vertices}, system.rest_position, {Eigen::Isometry3d(Eigen::Translation3d(1, 0, 0))});
+  EXPECT_EQ(moved.particles_inside_bone, 0);
+  EXPECT_EQ(moved.max_particle_inside_bone_depth_m, 0.0);
+  EXPECT_EQ(moved.muscles[0].deepest_particle_bone, "");
+}
+
 TEST(DeformationMetrics, FibreLengthChangeOfAStretchedFibreIsItsStretch) {
   const md::MassSpringSystem system = oneFibreSystem(straightFibre(7));
   const md::DeformationMetrics metrics({}, {cubeMuscle()}, system);

@@ -328,12 +328,34 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
         stats.max_surface_inside_bone_bone = m.deepest_bone;
       }
     }
+    stats.particles_inside_bone = metrics.particles_inside_bone;
+    stats.max_particle_inside_bone_m = metrics.max_particle_inside_bone_depth_m;
+    double deepest_particle = 0;
+    for (const MuscleMetrics& m : metrics.muscles) {
+      if (m.particles_inside_bone > 0 && m.max_particle_inside_bone_depth_m >= deepest_particle) {
+        deepest_particle = m.max_particle_inside_bone_depth_m;
+        stats.max_particle_inside_bone_muscle = m.name;
+        stats.max_particle_inside_bone_bone = m.deepest_particle_bone;
+      }
+    }
+    const bool corrected = frame.volume_corrections.size() == metrics.muscles.size();
+    for (std::size_t m = 0; m < metrics.muscles.size(); ++m) {
+      const MuscleMetrics& muscle = metrics.muscles[m];
+      stats.muscle_names.push_back(muscle.name);
+      stats.muscle_volume_error_pct.push_back(muscle.volume_error_pct);
+      stats.muscle_skinned_volume_error_pct.push_back(
+          corrected ? frame.volume_corrections[m].volume_error_before_pct : muscle.volume_error_pct);
+      stats.muscle_max_surface_inside_bone_m.push_back(muscle.max_inside_bone_depth_m);
+      stats.muscle_max_particle_inside_bone_m.push_back(muscle.max_particle_inside_bone_depth_m);
+    }
   } else {
     stats.surface_metrics_absent_reason =
         frame.metrics_absent_reason.empty() ? "not measured" : frame.metrics_absent_reason;
     stats.volume_error_mean_pct = stats.volume_error_max_pct = kAbsent;
     stats.surface_vertices_inside_bone = -1;
     stats.max_surface_inside_bone_m = kAbsent;
+    stats.particles_inside_bone = -1;
+    stats.max_particle_inside_bone_m = kAbsent;
   }
   return stats;
 }
@@ -341,7 +363,7 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
 std::vector<AbsentMetric> absentStatsFigures(const DeformationPipeline& stream, bool stats_metrics) {
   std::vector<AbsentMetric> absent = stream.absentMetrics();
   if (stream.metrics() && !stats_metrics)
-    absent.push_back({"volume_error_*, surface_vertices_inside_bone, max_surface_inside_bone_m",
+    absent.push_back({kFidelityFigures,
                       "stats_metrics is false", "set stats_metrics: true", true});
   return absent;
 }

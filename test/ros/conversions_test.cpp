@@ -8,6 +8,8 @@
 
 #include <cmath>
 #include <limits>
+#include <string>
+#include <vector>
 
 namespace md = muscle_deformation;
 namespace node = muscle_deformation::node;
@@ -126,6 +128,12 @@ TEST(Conversions, FiguresThatWereNotMeasuredAreNaNWithTheirFlagAndReasonNeverZer
   EXPECT_EQ(stats.volume_error_max_muscle, "");
   EXPECT_EQ(stats.surface_vertices_inside_bone, -1);
   EXPECT_TRUE(std::isnan(stats.max_surface_inside_bone_m));
+  EXPECT_EQ(stats.particles_inside_bone, -1);
+  EXPECT_TRUE(std::isnan(stats.max_particle_inside_bone_m));
+  EXPECT_EQ(stats.max_particle_inside_bone_muscle, "");
+  EXPECT_TRUE(stats.muscle_names.empty());
+  EXPECT_TRUE(stats.muscle_volume_error_pct.empty());
+  EXPECT_TRUE(stats.muscle_max_particle_inside_bone_m.empty());
   EXPECT_EQ(stats.surface_metrics_absent_reason, frame.metrics_absent_reason);
 
   // A frame without reasons still says the figures were not measured.
@@ -187,6 +195,48 @@ TEST(Conversions, TheDeepestSurfaceVertexInsideABoneIsNamedWithItsMuscleAndBone)
   EXPECT_EQ(stats.max_surface_inside_bone_m, 0.009);
 }
 
+TEST(Conversions, TheDeepestParticleInsideABoneIsNamedAndEveryMusclesFiguresAreListedInOrder) {
+  md::FrameResult frame;
+  frame.has_metrics = true;
+  md::MuscleMetrics iliacus, psoas;
+  iliacus.name = "iliacus";
+  iliacus.volume_error_pct = -0.4;
+  iliacus.vertices_inside_bone = 2;
+  iliacus.max_inside_bone_depth_m = 0.0005;
+  iliacus.deepest_bone = "hip_r";
+  iliacus.particles_inside_bone = 1;
+  iliacus.max_particle_inside_bone_depth_m = 0.0003;
+  iliacus.deepest_particle_bone = "hip_r";
+  psoas.name = "psoas_major";
+  psoas.volume_error_pct = 0.2;
+  psoas.particles_inside_bone = 4;
+  psoas.max_particle_inside_bone_depth_m = 0.0012;
+  psoas.deepest_particle_bone = "sacrum";
+  frame.metrics.muscles = {iliacus, psoas};
+  frame.metrics.particles_inside_bone = 5;
+  frame.metrics.max_particle_inside_bone_depth_m = 0.0012;
+  md::SurfaceVolumeCorrection iliacus_correction, psoas_correction;
+  iliacus_correction.volume_error_before_pct = -3.5;
+  psoas_correction.volume_error_before_pct = 1.25;
+  frame.volume_corrections = {iliacus_correction, psoas_correction};
+
+  const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_EQ(stats.particles_inside_bone, 5);
+  EXPECT_EQ(stats.max_particle_inside_bone_m, 0.0012);
+  EXPECT_EQ(stats.max_particle_inside_bone_muscle, "psoas_major");
+  EXPECT_EQ(stats.max_particle_inside_bone_bone, "sacrum");
+  EXPECT_EQ(stats.muscle_names, (std::vector<std::string>{"iliacus", "psoas_major"}));
+  EXPECT_EQ(stats.muscle_volume_error_pct, (std::vector<double>{-0.4, 0.2}));
+  EXPECT_EQ(stats.muscle_skinned_volume_error_pct, (std::vector<double>{-3.5, 1.25}));
+  EXPECT_EQ(stats.muscle_max_surface_inside_bone_m, (std::vector<double>{0.0005, 0.0}));
+  EXPECT_EQ(stats.muscle_max_particle_inside_bone_m, (std::vector<double>{0.0003, 0.0012}));
+
+  // Without the volume constraint the skinned surface is the one shown: the same volume error.
+  frame.volume_corrections.clear();
+  const muscle_deformation::DeformationStats uncorrected = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_EQ(uncorrected.muscle_skinned_volume_error_pct, uncorrected.muscle_volume_error_pct);
+}
+
 TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {
   Eigen::Matrix3Xd positions(3, 3);
   positions << 0, 0.1, 0.2,  //
@@ -230,6 +280,7 @@ TEST(Conversions, TheStreamsAbsentFiguresIncludeTheSurfaceMetricsWhenStatsMetric
   EXPECT_EQ(without[1].reason, "stats_metrics is false");
   EXPECT_EQ(without[1].remedy, "set stats_metrics: true");
   EXPECT_NE(without[1].describe().find("volume_error_*"), std::string::npos) << without[1].describe();
+  EXPECT_NE(without[1].describe().find("max_particle_inside_bone_m"), std::string::npos) << without[1].describe();
 }
 
 TEST(Conversions, APipelinesFrameCarriesEverythingItsMessagesNeed) {

@@ -124,7 +124,7 @@ AbsentMetric DeformationPipeline::collisionAbsence() const {
 }
 
 AbsentMetric DeformationPipeline::metricsAbsence() const {
-  AbsentMetric absent{"volume_error_*, surface_vertices_inside_bone, max_surface_inside_bone_m", metrics_problem_, ""};
+  AbsentMetric absent{kFidelityFigures, metrics_problem_, ""};
   absent.turned_off = !settings_.measure_fidelity;
   if (!settings_.measure_fidelity)
     absent.remedy = "set surface_metrics: true";

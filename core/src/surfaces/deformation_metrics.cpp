@@ -196,6 +196,9 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
   // Fibres: consecutive particles of one fibre of one muscle (as fibrePolylines).
   const Eigen::Index n = system.particleCount();
   particle_count_ = n;
+  particle_muscle_.resize(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i)
+    particle_muscle_[static_cast<std::size_t>(i)] = system.fibre_of[i] == kTendonAnchor ? -1 : system.muscle_of[i];
   Eigen::Index first = 0;
   for (Eigen::Index i = 1; i <= n; ++i)
     if (i == n || system.fibre_of[i] != system.fibre_of[i - 1] || system.muscle_of[i] != system.muscle_of[i - 1]) {
@@ -245,6 +248,24 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     probes.push_back(bone_fields_[b]->probe());
   }
 
+  // Whether a point is inside any posed bone; if so, raises `deepest` (and names its bone) where it lies deeper.
+  const auto insideBone = [&](const Eigen::Vector3d& point, double& deepest, std::string& deepest_bone) {
+    bool inside = false;
+    for (std::size_t b = 0; b < bone_count; ++b) {
+      if ((point.array() < posed_box[b].min.array()).any() || (point.array() > posed_box[b].max.array()).any())
+        continue;
+      double distance = 0;
+      Eigen::Vector3d unused;
+      if (!probes[b].closerThan(to_rest[b] * point, 0.0, distance, unused)) continue;
+      inside = true;
+      if (-distance > deepest) {
+        deepest = -distance;
+        deepest_bone = bone_names_[b];
+      }
+    }
+    return inside;
+  };
+
   SceneMetrics scene;
   scene.muscles.resize(muscle_names_.size());
   for (std::size_t m = 0; m < muscle_names_.size(); ++m) {
@@ -257,30 +278,27 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     out.rest_volume_m3 = rest_volume_[m];
     out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
     out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
-    for (Eigen::Index v = 0; v < surface.cols(); ++v) {
-      bool inside = false;
-      const Eigen::Vector3d vertex = surface.col(v);
-      for (std::size_t b = 0; b < bone_count; ++b) {
-        if ((vertex.array() < posed_box[b].min.array()).any() || (vertex.array() > posed_box[b].max.array()).any())
-          continue;
-        double distance = 0;
-        Eigen::Vector3d unused;
-        if (!probes[b].closerThan(to_rest[b] * vertex, 0.0, distance, unused)) continue;
-        inside = true;
-        const double depth = -distance;
-        if (depth > out.max_inside_bone_depth_m) {
-          out.max_inside_bone_depth_m = depth;
-          out.deepest_bone = bone_names_[b];
-        }
-      }
-      out.vertices_inside_bone += inside;
-    }
+    for (Eigen::Index v = 0; v < surface.cols(); ++v)
+      out.vertices_inside_bone += insideBone(surface.col(v), out.max_inside_bone_depth_m, out.deepest_bone);
     scene.vertices_inside_bone += out.vertices_inside_bone;
     scene.max_inside_bone_depth_m = std::max(scene.max_inside_bone_depth_m, out.max_inside_bone_depth_m);
     scene.volume_error_mean_pct += std::abs(out.volume_error_pct);
     scene.volume_error_max_pct = std::max(scene.volume_error_max_pct, std::abs(out.volume_error_pct));
   }
   if (!scene.muscles.empty()) scene.volume_error_mean_pct /= static_cast<double>(scene.muscles.size());
+
+  for (Eigen::Index i = 0; i < particle_count_; ++i) {
+    const int muscle = particle_muscle_[static_cast<std::size_t>(i)];
+    if (muscle < 0) continue;
+    MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
+    out.particles_inside_bone +=
+        insideBone(particle_positions.col(i), out.max_particle_inside_bone_depth_m, out.deepest_particle_bone);
+  }
+  for (const MuscleMetrics& out : scene.muscles) {
+    scene.particles_inside_bone += out.particles_inside_bone;
+    scene.max_particle_inside_bone_depth_m =
+        std::max(scene.max_particle_inside_bone_depth_m, out.max_particle_inside_bone_depth_m);
+  }
 
   const Eigen::VectorXd ratios = fibreLengthRatios(particle_positions);
   std::vector<double> sum(muscle_names_.size(), 0.0);

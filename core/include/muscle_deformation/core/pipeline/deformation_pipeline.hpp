@@ -74,6 +74,12 @@ struct FrameResult {
   const SurfaceSkinning* skinning_ = nullptr;
 };
 
+// The fidelity figures (the surface metrics and the particles' depth in bone) by their ~stats names, as an absence
+// names them.
+inline constexpr const char* kFidelityFigures =
+    "volume_error_*, surface_vertices_inside_bone, max_surface_inside_bone_m, particles_inside_bone, "
+    "max_particle_inside_bone_m, muscle_*";
+
 // A figure the pipeline cannot give, with the reason and what would turn it on (setting names as in the settings
 // table and config/muscle_deformation.yaml).
 struct AbsentMetric {

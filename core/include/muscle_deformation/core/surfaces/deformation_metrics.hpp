@@ -1,6 +1,7 @@
-// Fidelity of a deformed scene: muscle volume kept, muscle surface inside bones, fibre length change.
+// Fidelity of a deformed scene: muscle volume kept, muscle surface and particles inside bones, fibre length change.
 //
-// Volume and penetration are measured on the skinned muscle surfaces (what users see); the penetration figure reads
+// Volume and penetration are measured on the skinned muscle surfaces (what users see), penetration also on the
+// particles (what the solver keeps out of the bones, whatever the collision stage's bone proxy); the figures read
 // each bone's signed distance field (the bone itself, to a fraction of a voxel; the exact ray-parity test below took
 // 35 ms a frame for the bundled scene), independent of which proxy the collision stage uses.
 #pragma once
@@ -64,6 +65,11 @@ struct MuscleMetrics {
   int vertices_inside_bone = 0;         // surface vertices inside any bone
   double max_inside_bone_depth_m = 0;   // largest distance from such a vertex to that bone's surface
   std::string deepest_bone;             // the bone of that vertex ("" when none)
+  // The muscle's particles (fixed or free; a tendon's bone anchor is the bone's own point and not counted) whose
+  // centre lies inside a bone, by the bone's field: what the solver is asked to keep out of the bones.
+  int particles_inside_bone = 0;
+  double max_particle_inside_bone_depth_m = 0;  // the deepest such particle's distance to that bone's surface
+  std::string deepest_particle_bone;            // its bone ("" when none)
   int fibres = 0;
   double fibre_length_change_mean_pct = 0;  // mean over fibres of (length / rest length - 1) * 100
   double fibre_length_change_min_pct = 0;   // range over fibres
@@ -76,6 +82,8 @@ struct SceneMetrics {
   double volume_error_max_pct = 0;     // max over muscles of |volume error|
   int vertices_inside_bone = 0;        // all muscles
   double max_inside_bone_depth_m = 0;  // all muscles
+  int particles_inside_bone = 0;                // all muscles
+  double max_particle_inside_bone_depth_m = 0;  // all muscles
   double compute_ms = 0;
 };
 
@@ -111,6 +119,7 @@ class DeformationMetrics {
   // Fibres: particle ranges [first, end) (tendon anchors belong to none), the muscle of each, rest lengths.
   std::vector<std::pair<Eigen::Index, Eigen::Index>> fibre_range_;
   Eigen::Index particle_count_ = 0;
+  std::vector<int> particle_muscle_;  // per particle its muscle, or -1 for a tendon's bone anchor (not measured)
   std::vector<int> fibre_muscle_;
   Eigen::VectorXd fibre_rest_length_;
 };
