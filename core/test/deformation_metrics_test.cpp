@@ -205,6 +205,36 @@ TEST(DeformationMetrics, CountsParticlesInsideABoneWithTheirDepthButNotATendonsB
   EXPECT_EQ(moved.muscles[0].deepest_particle_bone, "");
 }
 
+TEST(DeformationMetrics, RememberingWhatItReadOfTheBonesChangesNoFigure) {
+  // Points scattered around a bone-sized ball (surface vertices and particles alike) while the ball moves through them
+  // in 2 mm steps, turns, and jumps back: the metrics that skip points their last reads proved out of the ball give, in
+  // every frame, exactly what a fresh instance reading every point gives.
+  const md::Bone bone{0, "ball", md::makeSphereMesh(Eigen::Vector3d::Zero(), 0.025, 4)};
+  std::mt19937 random(5);
+  std::uniform_real_distribution<double> coordinate(-0.05, 0.05);
+  Eigen::Matrix3Xd points(3, 2000);
+  for (Eigen::Index i = 0; i < points.cols(); ++i)
+    points.col(i) = Eigen::Vector3d(coordinate(random), coordinate(random), coordinate(random));
+  md::Vertices surface = unitCube().vertices;
+  surface.conservativeResize(3, 8 + points.cols());
+  surface.rightCols(points.cols()) = points;
+  const md::MassSpringSystem system = oneFibreSystem(points);
+  const md::DeformationMetrics remembering({bone}, {cubeMuscle()}, system);
+  for (int frame = 0; frame < 25; ++frame) {
+    const double shift = frame < 24 ? 0.002 * frame : 0.0;  // the last frame jumps back
+    const Eigen::Isometry3d pose = Eigen::Translation3d(shift, 0.5 * shift, 0) *
+                                   Eigen::AngleAxisd(0.05 * frame, Eigen::Vector3d(0, 0.6, 0.8));
+    const md::SceneMetrics cached = remembering.measure({surface}, points, {pose});
+    const md::DeformationMetrics fresh_metrics({bone}, {cubeMuscle()}, system);
+    const md::SceneMetrics fresh = fresh_metrics.measure({surface}, points, {pose});
+    ASSERT_GT(fresh.vertices_inside_bone, 0) << "frame " << frame;
+    EXPECT_EQ(cached.vertices_inside_bone, fresh.vertices_inside_bone) << "frame " << frame;
+    EXPECT_EQ(cached.max_inside_bone_depth_m, fresh.max_inside_bone_depth_m) << "frame " << frame;
+    EXPECT_EQ(cached.particles_inside_bone, fresh.particles_inside_bone) << "frame " << frame;
+    EXPECT_EQ(cached.max_particle_inside_bone_depth_m, fresh.max_particle_inside_bone_depth_m) << "frame " << frame;
+  }
+}
+
 TEST(DeformationMetrics, FibreLengthChangeOfAStretchedFibreIsItsStretch) {
   const md::MassSpringSystem system = oneFibreSystem(straightFibre(7));
   const md::DeformationMetrics metrics({}, {cubeMuscle()}, system);

@@ -157,4 +157,8 @@ BoneFields buildBoneFields(const std::vector<Bone>& bones, const BoneFieldSettin
   return fields;
 }
 
+FieldReadCache::FieldReadCache(Eigen::Index points)
+    : at_(Eigen::Matrix3Xd::Zero(3, points)),
+      distance_(Eigen::VectorXd::Constant(points, -std::numeric_limits<double>::infinity())) {}
+
 }  // namespace muscle_deformation

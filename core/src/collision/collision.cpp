@@ -69,13 +69,9 @@ struct CollisionWorld::Impl {
   std::vector<Eigen::VectorXd> field_clearance;  // [bone][k] for particle field_particles[k]
   std::vector<AlignedBox> field_reach;           // [bone], world frame
   int closer_than_radius_at_rest = 0;
-  // What the last read of each (bone, particle) proved: the distance, or a lower bound of it, at a point of the bone's
-  // frame. Until the particle has moved far enough from that point to possibly come within reach, it is not read again
-  // (the interpolated field changes at most sqrt(3) times as fast as the point moves: each axis at most as fast).
-  // A cache of reads: skipping is exact, the contacts found are the same.
-  mutable std::vector<Eigen::Matrix3Xd> field_known_at;
-  mutable std::vector<Eigen::VectorXd> field_known_distance;
-  static constexpr double kFieldSlope = 1.7320508075688772;
+  // What the last read of each (bone, particle) proved (seeded with the rest distances): a particle is read again only
+  // once it may have come within reach. Skipping is exact, the contacts found are the same.
+  mutable std::vector<FieldReadCache> field_reads;  // [bone], indexed like field_particles
 
   std::unique_ptr<BroadPhase> broad;
   std::vector<SpherePair> pairs;
@@ -155,8 +151,7 @@ struct CollisionWorld::Impl {
       const BoneDistanceField::Probe probe = bone_fields[b]->probe();
       const Eigen::Index count = static_cast<Eigen::Index>(field_particles.size());
       Eigen::VectorXd clearance(count);
-      Eigen::Matrix3Xd known_at(3, count);
-      Eigen::VectorXd known_distance(count);
+      FieldReadCache reads(count);
       for (std::size_t k = 0; k < field_particles.size(); ++k) {
         const std::int32_t p = field_particles[k];
         const Eigen::Index kk = static_cast<Eigen::Index>(k);
@@ -164,12 +159,10 @@ struct CollisionWorld::Impl {
         const double at_rest = probe.distance(system.rest_position.col(p));
         clearance[kk] = std::min(radius, at_rest);
         if (at_rest < radius) closer[static_cast<std::size_t>(p)] = 1;
-        known_at.col(kk) = system.rest_position.col(p);
-        known_distance[kk] = at_rest;
+        reads.remember(kk, system.rest_position.col(p), at_rest);
       }
       field_clearance.push_back(std::move(clearance));
-      field_known_at.push_back(std::move(known_at));
-      field_known_distance.push_back(std::move(known_distance));
+      field_reads.push_back(std::move(reads));
       field_reach.push_back(bone_fields[b]->reach());
     }
     for (const std::uint8_t c : closer) closer_than_radius_at_rest += c;
@@ -186,21 +179,19 @@ struct CollisionWorld::Impl {
       const Eigen::Matrix3d rotation = bone_transform[b].linear();
       const AlignedBox& reach = field_reach[b];
       const Eigen::VectorXd& clearance = field_clearance[b];
-      Eigen::Matrix3Xd& known_at = field_known_at[b];
-      Eigen::VectorXd& known_distance = field_known_distance[b];
+      FieldReadCache& reads = field_reads[b];
       for (std::size_t k = 0; k < field_particles.size(); ++k) {
         const std::int32_t p = field_particles[k];
         const Eigen::Index kk = static_cast<Eigen::Index>(k);
         const Eigen::Vector3d x = state.position.col(p);
         const double clear = clearance[kk];
         const Eigen::Vector3d local = to_rest * x;
-        if (known_distance[kk] - kFieldSlope * (local - known_at.col(kk)).norm() >= clear + margin) continue;
+        if (reads.provenBeyond(kk, local, clear + margin)) continue;
         if ((x.array() < reach.min.array()).any() || (x.array() > reach.max.array()).any()) continue;
         Eigen::Vector3d gradient;
         double distance = 0;
         const bool closer = probe.closerThan(local, clear + margin, distance, gradient);
-        known_at.col(kk) = local;
-        known_distance[kk] = distance;
+        reads.remember(kk, local, distance);
         if (!closer) continue;
         const double depth = clear - distance;
         if (depth <= -margin) continue;

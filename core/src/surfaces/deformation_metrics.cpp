@@ -182,6 +182,7 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
     }
   }
   for (const Muscle& muscle : muscles) {
+    vertex_reads_.emplace_back(bone_fields_.size(), FieldReadCache(muscle.surface.vertexCount()));
     const SurfaceTopologyReport topology = checkSurfaceTopology(muscle.surface);
     if (!topology.closedManifold())
       throw MetricsError("muscle '" + muscle.name + "': surface is not a closed 2-manifold (" + topology.describe() +
@@ -196,6 +197,7 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
   // Fibres: consecutive particles of one fibre of one muscle (as fibrePolylines).
   const Eigen::Index n = system.particleCount();
   particle_count_ = n;
+  particle_reads_.assign(bone_fields_.size(), FieldReadCache(n));
   particle_muscle_.resize(static_cast<std::size_t>(n));
   for (Eigen::Index i = 0; i < n; ++i)
     particle_muscle_[static_cast<std::size_t>(i)] = system.fibre_of[i] == kTendonAnchor ? -1 : system.muscle_of[i];
@@ -248,15 +250,31 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     probes.push_back(bone_fields_[b]->probe());
   }
 
-  // Whether a point is inside any posed bone; if so, raises `deepest` (and names its bone) where it lies deeper.
-  const auto insideBone = [&](const Eigen::Vector3d& point, double& deepest, std::string& deepest_bone) {
+  // The bones whose posed box a set of points' box meets: only those can hold one of the points.
+  std::vector<std::size_t> near;
+  const auto bonesNear = [&](const auto& points) {
+    near.clear();
+    if (points.cols() == 0) return;
+    const Eigen::Vector3d low = points.rowwise().minCoeff(), high = points.rowwise().maxCoeff();
+    for (std::size_t b = 0; b < bone_count; ++b)
+      if ((high.array() >= posed_box[b].min.array()).all() && (low.array() <= posed_box[b].max.array()).all())
+        near.push_back(b);
+  };
+  // Whether point k (of `reads`) is inside any of the `near` bones; if so, raises `deepest` (and names its bone) where
+  // it lies deeper. A point is read only where it may have come into a bone since its last read proved it out.
+  const auto insideBone = [&](std::vector<FieldReadCache>& reads, Eigen::Index k, const Eigen::Vector3d& point,
+                              double& deepest, std::string& deepest_bone) {
     bool inside = false;
-    for (std::size_t b = 0; b < bone_count; ++b) {
+    for (const std::size_t b : near) {
       if ((point.array() < posed_box[b].min.array()).any() || (point.array() > posed_box[b].max.array()).any())
         continue;
+      const Eigen::Vector3d local = to_rest[b] * point;
+      if (reads[b].provenBeyond(k, local, 0.0)) continue;
       double distance = 0;
       Eigen::Vector3d unused;
-      if (!probes[b].closerThan(to_rest[b] * point, 0.0, distance, unused)) continue;
+      const bool closer = probes[b].closerThan(local, 0.0, distance, unused);
+      reads[b].remember(k, local, distance);
+      if (!closer) continue;
       inside = true;
       if (-distance > deepest) {
         deepest = -distance;
@@ -278,8 +296,13 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     out.rest_volume_m3 = rest_volume_[m];
     out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
     out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
+    std::vector<FieldReadCache>& reads = vertex_reads_[m];
+    for (FieldReadCache& cache : reads)
+      if (cache.size() != surface.cols()) cache = FieldReadCache(surface.cols());  // another surface: nothing known
+    bonesNear(surface);
     for (Eigen::Index v = 0; v < surface.cols(); ++v)
-      out.vertices_inside_bone += insideBone(surface.col(v), out.max_inside_bone_depth_m, out.deepest_bone);
+      out.vertices_inside_bone +=
+          insideBone(reads, v, surface.col(v), out.max_inside_bone_depth_m, out.deepest_bone);
     scene.vertices_inside_bone += out.vertices_inside_bone;
     scene.max_inside_bone_depth_m = std::max(scene.max_inside_bone_depth_m, out.max_inside_bone_depth_m);
     scene.volume_error_mean_pct += std::abs(out.volume_error_pct);
@@ -287,12 +310,20 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   }
   if (!scene.muscles.empty()) scene.volume_error_mean_pct /= static_cast<double>(scene.muscles.size());
 
-  for (Eigen::Index i = 0; i < particle_count_; ++i) {
-    const int muscle = particle_muscle_[static_cast<std::size_t>(i)];
-    if (muscle < 0) continue;
-    MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
-    out.particles_inside_bone +=
-        insideBone(particle_positions.col(i), out.max_particle_inside_bone_depth_m, out.deepest_particle_bone);
+  // Particles in runs of one muscle (a muscle's particles are consecutive); its tendon anchors, a run of -1 after
+  // them, are the bones' own points and skipped.
+  for (Eigen::Index begin = 0; begin < particle_count_;) {
+    const int muscle = particle_muscle_[static_cast<std::size_t>(begin)];
+    Eigen::Index end = begin;
+    while (end < particle_count_ && particle_muscle_[static_cast<std::size_t>(end)] == muscle) ++end;
+    if (muscle >= 0) {
+      bonesNear(particle_positions.middleCols(begin, end - begin));
+      MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
+      for (Eigen::Index i = begin; i < end; ++i)
+        out.particles_inside_bone += insideBone(particle_reads_, i, particle_positions.col(i),
+                                                out.max_particle_inside_bone_depth_m, out.deepest_particle_bone);
+    }
+    begin = end;
   }
   for (const MuscleMetrics& out : scene.muscles) {
     scene.particles_inside_bone += out.particles_inside_bone;

@@ -87,6 +87,37 @@ class BoneDistanceField {
   double build_ms_ = 0;
 };
 
+// What earlier reads of one bone's field proved about a set of points: for each point the distance (or the lower bound
+// a read proved) at the point of the bone's frame where it was read. The interpolated field changes at most sqrt(3)
+// times as fast as a point moves (each axis at most as fast), so a point that has not moved far enough from there to
+// come within a limit need not be read again: skipping is exact. Frame to frame most points of a muscle stay far from
+// most bones, which is what makes the contacts and the inside-bone metrics cheap.
+class FieldReadCache {
+ public:
+  static constexpr double kSlope = 1.7320508075688772;  // sqrt(3)
+
+  FieldReadCache() = default;
+  // `points` points, none read yet (every one is read on its first query).
+  explicit FieldReadCache(Eigen::Index points);
+
+  // Whether point k, now at `local` (bone frame), is still proven at least `limit` from the bone:
+  // distance - sqrt(3) |moved| >= limit, compared in squares (no square root on the hot path).
+  bool provenBeyond(Eigen::Index k, const Eigen::Vector3d& local, double limit) const {
+    const double room = distance_[k] - limit;
+    return room >= 0 && 3.0 * (local - at_.col(k)).squaredNorm() <= room * room;
+  }
+  // What a read of point k at `local` gave (Probe::closerThan's distance, exact or a lower bound).
+  void remember(Eigen::Index k, const Eigen::Vector3d& local, double distance) {
+    at_.col(k) = local;
+    distance_[k] = distance;
+  }
+  Eigen::Index size() const { return distance_.size(); }
+
+ private:
+  Eigen::Matrix3Xd at_;
+  Eigen::VectorXd distance_;
+};
+
 // One field per bone, shared: built once per scene and handed to every simulation, pipeline and metrics that use it
 // (building them is most of a scene's start-up).
 using BoneFields = std::vector<std::shared_ptr<const BoneDistanceField>>;

@@ -96,7 +96,9 @@ class DeformationMetrics {
                      std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields = {});
 
   // Per solve: surfaces[m] are muscle m's deformed surface vertices (e.g. from SurfaceSkinning::update), positions
-  // the particles, transforms the bones' pose (indexed by Bone::id; missing bones stay at rest).
+  // the particles, transforms the bones' pose (indexed by Bone::id; missing bones stay at rest). Remembers what it
+  // read of the bone fields, so that the next frame reads only points that may have come close to a bone (exact for
+  // any motion); one instance measures one frame at a time.
   SceneMetrics measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
                        const BoneTransforms& bone_transforms) const;
 
@@ -120,6 +122,10 @@ class DeformationMetrics {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> fibre_range_;
   Eigen::Index particle_count_ = 0;
   std::vector<int> particle_muscle_;  // per particle its muscle, or -1 for a tendon's bone anchor (not measured)
+  // What the last frames' reads proved (FieldReadCache): [muscle][bone] about each surface vertex, [bone] about each
+  // particle.
+  mutable std::vector<std::vector<FieldReadCache>> vertex_reads_;
+  mutable std::vector<FieldReadCache> particle_reads_;
   std::vector<int> fibre_muscle_;
   Eigen::VectorXd fibre_rest_length_;
 };
