@@ -178,7 +178,7 @@ TEST(DeformationMetrics, TheInsideBoneCountFromTheBonesFieldIsTheExactTestsAwayF
   EXPECT_NEAR(scene.max_inside_bone_depth_m, exact_deepest, 1e-4);
 }
 
-TEST(DeformationMetrics, CountsParticlesInsideABoneWithTheirDepthButNotATendonsBoneAnchor) {
+TEST(DeformationMetrics, CountsParticlesInsideABoneWithTheirDepthButNotAttachmentsToItOrATendonsBoneAnchor) {
   // A fibre through a bone-sized ball (radius 25 mm): its particles at z = +-15 mm lie 10 mm deep, the two at +-30 mm
   // outside. A fifth particle at the ball's centre is a tendon's anchor, the bone's own point: not a muscle particle.
   Eigen::Matrix3Xd particles(3, 5);
@@ -196,6 +196,15 @@ TEST(DeformationMetrics, CountsParticlesInsideABoneWithTheirDepthButNotATendonsB
   EXPECT_NEAR(scene.muscles[0].max_particle_inside_bone_depth_m, 0.010, 2e-4);  // the mesh is inscribed in the ball
   EXPECT_EQ(scene.max_particle_inside_bone_depth_m, scene.muscles[0].max_particle_inside_bone_depth_m);
   EXPECT_EQ(scene.muscles[0].deepest_particle_bone, "ball");
+
+  // Fixed to the ball, the deeper particles are its attachment there, not a penetration.
+  md::MassSpringSystem attached = system;
+  attached.is_fixed[1] = attached.is_fixed[2] = 1;
+  attached.fixed_bone[1] = attached.fixed_bone[2] = 0;
+  const md::DeformationMetrics attached_metrics({bone}, {cubeMuscle()}, attached);
+  const md::SceneMetrics at_attachment = attached_metrics.measure({unitCube().vertices}, attached.rest_position, {});
+  EXPECT_EQ(at_attachment.particles_inside_bone, 0);
+  EXPECT_EQ(at_attachment.max_particle_inside_bone_depth_m, 0.0);
 
   // The same particles with the bone moved 1 m away by the pose: none inside, depth 0, no bone named.
   const md::SceneMetrics moved =

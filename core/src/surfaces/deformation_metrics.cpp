@@ -199,6 +199,9 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
   particle_count_ = n;
   particle_reads_.assign(bone_fields_.size(), FieldReadCache(n));
   particle_muscle_.resize(static_cast<std::size_t>(n));
+  particle_own_bone_.assign(static_cast<std::size_t>(n), -1);
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (system.is_fixed[static_cast<std::size_t>(i)]) particle_own_bone_[static_cast<std::size_t>(i)] = system.fixed_bone[i];
   for (Eigen::Index i = 0; i < n; ++i)
     particle_muscle_[static_cast<std::size_t>(i)] = system.fibre_of[i] == kTendonAnchor ? -1 : system.muscle_of[i];
   Eigen::Index first = 0;
@@ -263,9 +266,10 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   // Whether point k (of `reads`) is inside any of the `near` bones; if so, raises `deepest` (and names its bone) where
   // it lies deeper. A point is read only where it may have come into a bone since its last read proved it out.
   const auto insideBone = [&](std::vector<FieldReadCache>& reads, Eigen::Index k, const Eigen::Vector3d& point,
-                              double& deepest, std::string& deepest_bone) {
+                              double& deepest, std::string& deepest_bone, int own_bone = -1) {
     bool inside = false;
     for (const std::size_t b : near) {
+      if (static_cast<int>(b) == own_bone) continue;
       if ((point.array() < posed_box[b].min.array()).any() || (point.array() > posed_box[b].max.array()).any())
         continue;
       const Eigen::Vector3d local = to_rest[b] * point;
@@ -320,8 +324,9 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
       bonesNear(particle_positions.middleCols(begin, end - begin));
       MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
       for (Eigen::Index i = begin; i < end; ++i)
-        out.particles_inside_bone += insideBone(particle_reads_, i, particle_positions.col(i),
-                                                out.max_particle_inside_bone_depth_m, out.deepest_particle_bone);
+        out.particles_inside_bone +=
+            insideBone(particle_reads_, i, particle_positions.col(i), out.max_particle_inside_bone_depth_m,
+                       out.deepest_particle_bone, particle_own_bone_[static_cast<std::size_t>(i)]);
     }
     begin = end;
   }

@@ -65,8 +65,10 @@ struct MuscleMetrics {
   int vertices_inside_bone = 0;         // surface vertices inside any bone
   double max_inside_bone_depth_m = 0;   // largest distance from such a vertex to that bone's surface
   std::string deepest_bone;             // the bone of that vertex ("" when none)
-  // The muscle's particles (fixed or free; a tendon's bone anchor is the bone's own point and not counted) whose
-  // centre lies inside a bone, by the bone's field: what the solver is asked to keep out of the bones.
+  // The muscle's particles whose centre lies inside a bone, by the bone's field: what the solver is asked to keep out
+  // of the bones. A free particle counts in any bone; a fixed particle in any bone but the one it is fixed to (it is
+  // the muscle's attachment there: where it lies in that bone is the attachment, not a penetration); a tendon's bone
+  // anchor is the bone's own point and never counts.
   int particles_inside_bone = 0;
   double max_particle_inside_bone_depth_m = 0;  // the deepest such particle's distance to that bone's surface
   std::string deepest_particle_bone;            // its bone ("" when none)
@@ -122,6 +124,7 @@ class DeformationMetrics {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> fibre_range_;
   Eigen::Index particle_count_ = 0;
   std::vector<int> particle_muscle_;  // per particle its muscle, or -1 for a tendon's bone anchor (not measured)
+  std::vector<int> particle_own_bone_;  // the bone a fixed particle is fixed to (not measured against it), else -1
   // What the last frames' reads proved (FieldReadCache): [muscle][bone] about each surface vertex, [bone] about each
   // particle.
   mutable std::vector<std::vector<FieldReadCache>> vertex_reads_;
