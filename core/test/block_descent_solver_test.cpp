@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <cmath>
 
 using namespace muscle_deformation;
@@ -325,21 +326,36 @@ TEST(BlockDescent, ThePredictedStartChangesWhereSweepsBeginNotTheFramesAnswer) {
   settings.stopping.max_iterations = 5000;
   settings.block_descent.residual_tolerance = 1e-9;
   shareStoppingRule(settings);
-  Eigen::Matrix3Xd answers[2];
-  int first_sweeps[2] = {0, 0};
-  for (const bool predict : {false, true}) {
-    settings.block_descent.predict_start = predict;
+  // No prediction; the last correction carried on; and that plus half its last change (predict_extrapolation).
+  Eigen::Matrix3Xd answers[3];
+  int last_sweeps[3] = {0, 0, 0};
+  for (const int variant : {0, 1, 2}) {
+    settings.block_descent.predict_start = variant > 0;
+    settings.block_descent.predict_extrapolation = variant == 2 ? 0.5 : 0.0;
     MuscleSimulation simulation(scene.muscles, scene.bones, settings);
     simulation.solve(syntheticThighPose(0.0, 0.0), StartMode::cold);
     for (int frame = 1; frame <= 4; ++frame) {
       const FrameStats stats = simulation.solve(syntheticThighPose(0.05 * frame, 0.08 * frame), StartMode::warm);
-      ASSERT_TRUE(stats.solver.converged) << "frame " << frame;
-      if (frame == 4) first_sweeps[predict] = stats.solver.iterations;
+      ASSERT_TRUE(stats.solver.converged) << "variant " << variant << ", frame " << frame;
+      if (frame == 4) last_sweeps[variant] = stats.solver.iterations;
     }
-    answers[predict] = simulation.state().position;
+    answers[variant] = simulation.state().position;
   }
+  std::printf("sweeps to converge the last frame: no prediction %d, correction carried %d, and half its change %d\n",
+              last_sweeps[0], last_sweeps[1], last_sweeps[2]);
   EXPECT_LT((answers[0] - answers[1]).colwise().norm().maxCoeff(), 1e-6);  // metres: one answer
-  EXPECT_LT(first_sweeps[1], first_sweeps[0]);  // the prediction starts closer to it
+  EXPECT_LT((answers[0] - answers[2]).colwise().norm().maxCoeff(), 1e-6);
+  EXPECT_LT(last_sweeps[1], last_sweeps[0]);  // the prediction starts closer to it
+}
+
+TEST(BlockDescent, PredictExtrapolationBeyondWhatStaysStableIsRefused) {
+  BlockDescentSettings settings;
+  settings.predict_extrapolation = 0.75;
+  EXPECT_TRUE(validate(settings).empty());
+  settings.predict_extrapolation = 1.0;  // linear extrapolation diverged on the bundled gait
+  EXPECT_NE(validate(settings).find("predict_extrapolation"), std::string::npos);
+  settings.predict_extrapolation = -0.1;
+  EXPECT_FALSE(validate(settings).empty());
 }
 
 TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {

@@ -91,6 +91,10 @@ std::vector<SettingSpec> buildTable() {
       boolean("predict_start",
               "block_descent: a warm frame starts from the previous frame's correction carried on with the bones",
               [block_descent](CoreSettings& s) -> bool& { return block_descent(s).predict_start; }),
+      number("predict_extrapolation", "", 0.0, kMaxPredictExtrapolation,
+             "block_descent: how much of the correction's change over the last frame the predicted start carries on "
+             "as well (0 = the correction as it was; 1, linear extrapolation, diverged on the bundled gait)",
+             [block_descent](CoreSettings& s) -> double& { return block_descent(s).predict_extrapolation; }),
       number("contact_stiffness_scale", "", 1e-6, 1e9,
              "block_descent: contact stiffness = this x material constant / median collision radius",
              [block_descent](CoreSettings& s) -> double& { return block_descent(s).contact_stiffness_scale; }),

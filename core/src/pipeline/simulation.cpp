@@ -68,6 +68,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   state_.position = position;
   state_.previous_position = position;
   correction_.setZero(3, position.cols());
+  previous_correction_.resize(3, 0);
   previous_transforms_ = transforms;
   has_previous_ = true;
 }
@@ -121,6 +122,9 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   if (predict) {
     // The previous answer plus its correction, moved with the bones like the answer itself.
     predicted.position = state_.position + correction_;
+    const double extrapolation = settings_.block_descent.predict_extrapolation;
+    if (extrapolation > 0 && previous_correction_.cols() == correction_.cols())
+      predicted.position += extrapolation * (correction_ - previous_correction_);
     warmStart(system_, previous_transforms_, transforms, predicted);
   }
   if (stats.warm_started)
@@ -179,10 +183,13 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   }
   previous_transforms_ = transforms;
   has_previous_ = stats.finite && !stats.solver.diverged;  // never warm-start from a broken state
-  if (drag && stats.warm_started && has_previous_)
+  if (drag && stats.warm_started && has_previous_) {
+    previous_correction_ = std::move(correction_);
     correction_ = state_.position - state_.carried_position;  // zero for fixed particles: both follow their bone
-  else
+  } else {
+    previous_correction_.resize(3, 0);  // nothing to extrapolate from after a cold start
     correction_.setZero(3, system_.particleCount());
+  }
   return stats;
 }
 

@@ -133,6 +133,8 @@ std::string validate(const BlockDescentSettings& settings) {
   if (settings.threads < 0) return "threads must be >= 0 (0 = every core)";
   if (!(settings.tissue_relaxation_s >= 0) || !std::isfinite(settings.tissue_relaxation_s))
     return "tissue_relaxation_s must be a finite number >= 0";
+  if (!(settings.predict_extrapolation >= 0 && settings.predict_extrapolation <= kMaxPredictExtrapolation))
+    return "predict_extrapolation must lie in [0, 0.75] (1, linear extrapolation, diverged on the bundled gait)";
   if (settings.max_iterations < 0) return "max_iterations must be >= 0";
   if (!(settings.residual_tolerance >= 0) || !(settings.displacement_tolerance_m >= 0) ||
       !(settings.time_budget_ms >= 0))

@@ -112,6 +112,9 @@ class MuscleSimulation {
   // The last frame's correction (its answer minus where the tissue carried it; zero after a cold start), which the next
   // warm start carries on (BlockDescentSettings::predict_start).
   Eigen::Matrix3Xd correction_;
+  // The correction of the frame before (for BlockDescentSettings::predict_extrapolation), empty when that frame did
+  // not continue a warm one.
+  Eigen::Matrix3Xd previous_correction_;
   BoneTransforms previous_transforms_;
   bool has_previous_ = false;
 };
