@@ -10,6 +10,7 @@ Run from a shell where the workspace's devel/setup.bash is sourced (the Makefile
 import argparse
 import csv
 import os
+import re
 import signal
 import socket
 import statistics
@@ -53,6 +54,10 @@ def main():
                              "rviz renders in software (the real-time factor comes from the measured solve times)")
     parser.add_argument("--mid-stance", type=float, default=0.2,
                         help="screenshot time as a fraction of the bag's duration (gait cycle from heel strike)")
+    parser.add_argument("--rviz-frame-rate", type=int, default=5,
+                        help="rviz redraws per second. rviz renders in software here (Xvfb, llvmpipe) and at its usual "
+                             "30 fps takes more than a core of this 2-core machine, which the solver then waits for; "
+                             "at 0.01x playback a pose stays on screen for 1.7 s, so 5 fps still shows every one")
     parser.add_argument("--timeout", type=float, default=600)
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
@@ -73,6 +78,15 @@ def main():
     screenshot_stamp = stamps[0] + args.mid_stance * (stamps[-1] - stamps[0])
     bag_rate_hz = (len(stamps) - 1) / (stamps[-1] - stamps[0])
 
+    rviz_config = os.path.join(args.out, "demo.rviz")
+    with open(os.path.join(rospkg.RosPack().get_path("muscle_deformation"), "config/muscle_deformation.rviz")) as source:
+        text = source.read()
+    text, replaced = re.subn(r"Frame Rate: \d+", f"Frame Rate: {args.rviz_frame_rate}", text)
+    if not replaced:
+        print("demo: config/muscle_deformation.rviz sets no 'Frame Rate'; rviz runs at its own rate")
+    with open(rviz_config, "w") as copy:
+        copy.write(text)
+
     xvfb = launch = None
     log = open(os.path.join(args.out, "roslaunch.log"), "w")
     try:
@@ -81,7 +95,8 @@ def main():
         time.sleep(1.5)
         launch = subprocess.Popen(
             ["roslaunch", "-p", str(port), "muscle_deformation", "gait_playback.launch", f"rate:={args.rate}",
-             "rviz:=true", "delay:=1", "paused:=true", f"bag:={bag_path}"], env=env, stdout=log, stderr=subprocess.STDOUT)
+             "rviz:=true", f"rviz_config:={os.path.abspath(rviz_config)}", "delay:=1", "paused:=true", f"bag:={bag_path}"],
+            env=env, stdout=log, stderr=subprocess.STDOUT)
         return record(args, stamps, screenshot_stamp, bag_rate_hz, launch)
     finally:
         stop(launch, "roslaunch")
@@ -263,7 +278,8 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken):
     metrics = [f for f in frames if f.has_surface_metrics]
     frame_period_ms = 1000.0 / bag_rate_hz
     print("== muscle_deformation demo: bundled 1-cycle gait")
-    print(f"poses in the bag           {len(stamps)} ({bag_rate_hz:.1f} Hz), played at rate {args.rate}")
+    print(f"poses in the bag           {len(stamps)} ({bag_rate_hz:.1f} Hz), played at rate {args.rate}; rviz at "
+          f"{args.rviz_frame_rate} fps")
     print(f"frames received / solved   {last.poses_received} / {last.poses_solved} "
           f"(dropped {last.poses_dropped}, unchanged {last.poses_unchanged}, tf failures {last.tf_failures})")
     print(f"solve (MSS + collision)    median {statistics.median(solve):.1f} ms, max {max(solve):.1f} ms, "
