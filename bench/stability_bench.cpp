@@ -9,6 +9,7 @@
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
@@ -16,6 +17,7 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -68,6 +70,11 @@ struct Outcome {
   double time_step_s = 0;
   double max_penetration_bone_m = 0;
   double max_penetration_muscle_m = 0;
+  // How deep any particle's centre went into a bone (its distance field; a fixed particle not counted in its own bone),
+  // measured after every frame, whatever the proxy the contacts use.
+  double max_particle_depth_m = 0;
+  std::string deepest_particle;  // "muscle in bone"
+  std::unique_ptr<DeformationMetrics> metrics;
 };
 
 void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const FrameStats& stats) {
@@ -82,6 +89,15 @@ void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const Fram
   outcome.max_penetration_bone_m = std::max(outcome.max_penetration_bone_m, stats.collision.max_penetration_muscle_bone_m);
   outcome.max_penetration_muscle_m =
       std::max(outcome.max_penetration_muscle_m, stats.collision.max_penetration_muscle_muscle_m);
+  if (!outcome.metrics)
+    outcome.metrics = std::make_unique<DeformationMetrics>(simulation.bones(), simulation.muscles(), simulation.system(),
+                                                           simulation.boneFields());
+  const SceneMetrics particles = outcome.metrics->measureParticles(simulation.state().position, simulation.boneTransforms());
+  for (const MuscleMetrics& muscle : particles.muscles)
+    if (muscle.max_particle_inside_bone_depth_m > outcome.max_particle_depth_m) {
+      outcome.max_particle_depth_m = muscle.max_particle_inside_bone_depth_m;
+      outcome.deepest_particle = muscle.name + " in " + muscle.deepest_particle_bone;
+    }
 }
 
 class Report {
@@ -103,13 +119,16 @@ class Report {
     records_.add("rms_to_pretransform_mm", rms_to_pretransform_mm);
     records_.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);
     records_.add("max_penetration_sphere_muscle_mm", outcome.max_penetration_muscle_m * 1e3);
+    records_.add("max_particle_inside_bone_mm", outcome.max_particle_depth_m * 1e3);
+    records_.add("deepest_particle", outcome.deepest_particle);
     records_.add("particle_volume_error_max_pct", volume_error_pct);  // tetrahedra over the particles
     records_.end();
     std::printf("[%6.1f s] %-22s recoveries %d%s, %s, %d iterations, %.0f ms, RMS to pre-transform %.2f mm, "
-                "bone penetration %.2f mm, particle-volume error max %.2f %%\n",
+                "bone penetration %.2f mm, particles in bone %.2f mm (%s), particle-volume error max %.2f %%\n",
                 elapsedSeconds(), name.c_str(), outcome.recoveries, outcome.diverged ? " (gave up)" : "",
                 outcome.finite ? "finite" : "NOT FINITE", outcome.iterations, outcome.wall_ms,
-                rms_to_pretransform_mm, outcome.max_penetration_bone_m * 1e3, volume_error_pct);
+                rms_to_pretransform_mm, outcome.max_penetration_bone_m * 1e3, outcome.max_particle_depth_m * 1e3,
+                outcome.deepest_particle.empty() ? "none" : outcome.deepest_particle.c_str(), volume_error_pct);
     std::fflush(stdout);
   }
   double elapsedSeconds() const {
@@ -232,6 +251,8 @@ int main(int argc, char** argv) {
     records.add("gluteus_peak_rms_to_start_mm", peak_rms_mm);
     records.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);
     records.add("max_penetration_sphere_muscle_mm", outcome.max_penetration_muscle_m * 1e3);
+    records.add("max_particle_inside_bone_mm", outcome.max_particle_depth_m * 1e3);
+    records.add("deepest_particle", outcome.deepest_particle);
     records.add("recoveries", outcome.recoveries);
     records.add("diverged", outcome.diverged ? 1.0 : 0.0);
     records.add("finite", outcome.finite ? 1.0 : 0.0);
@@ -239,8 +260,9 @@ int main(int argc, char** argv) {
     records.add("wall_ms", outcome.wall_ms);
     records.end();
     std::printf("[%6.1f s] pbd_femur_flexion: gluteus maximus ends %.2f mm RMS from its start (peak %.2f mm), max "
-                "bone penetration %.2f mm, recoveries %d, %s\n",
+                "bone penetration %.2f mm, particles in bone %.2f mm, recoveries %d, %s\n",
                 report.elapsedSeconds(), end_rms_mm, peak_rms_mm, outcome.max_penetration_bone_m * 1e3,
+                outcome.max_particle_depth_m * 1e3,
                 outcome.recoveries, outcome.finite ? "finite" : "NOT FINITE");
   }
 

@@ -379,14 +379,17 @@ def stability_section(rows):
     if cases:
         radius = cases[0].get("median_sphere_radius_mm", float("nan"))
         lines += ["| case | what | recoveries | gave up | finite | iterations | wall ms | dt at the end s | RMS to the "
-                  "pre-transform mm | sphere penetration into bone mm | between muscles mm |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "pre-transform mm | sphere penetration into bone mm | between muscles mm | particle centres in "
+                  "bone mm (deepest) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cases:
             lines.append(f"| {row['case']} | {row.get('description', '')} | {int(row['recoveries'])} | "
                          f"{'yes' if row['diverged'] else 'no'} | {'yes' if row['finite'] else 'no'} | "
                          f"{int(row['iterations'])} | {row['wall_ms']:.0f} | {row['time_step_s']:.3g} | "
                          f"{row['rms_to_pretransform_mm']:.2f} | {row['max_penetration_sphere_bone_mm']:.2f} | "
-                         f"{row['max_penetration_sphere_muscle_mm']:.2f} |")
+                         f"{row['max_penetration_sphere_muscle_mm']:.2f} | "
+                         f"{row.get('max_particle_inside_bone_mm', float('nan')):.2f}"
+                         f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} |")
         deep = [row["case"] for row in cases if row["max_penetration_sphere_bone_mm"] > radius]
         lines += ["", f"The median collision sphere radius is {radius:.2f} mm. "
                   + (f"Penetration deeper than that (a particle centre inside the bone proxy) remains in: "
@@ -400,7 +403,8 @@ def stability_section(rows):
                   f"**{row['gluteus_end_rms_to_start_mm']:.2f} mm RMS** from its starting shape (peak on the way "
                   f"{row['gluteus_peak_rms_to_start_mm']:.1f} mm); the deepest sphere penetration into bone on the "
                   f"way is **{row['max_penetration_sphere_bone_mm']:.2f} mm** (median sphere radius "
-                  f"{row['median_sphere_radius_mm']:.2f} mm); {int(row['recoveries'])} recoveries, "
+                  f"{row['median_sphere_radius_mm']:.2f} mm), the deepest particle centre in bone "
+                  f"{row.get('max_particle_inside_bone_mm', float('nan')):.2f} mm; {int(row['recoveries'])} recoveries, "
                   f"{'every frame finite' if row['finite'] else 'NON-FINITE frames'}.", ""]
     return lines
 

@@ -231,102 +231,89 @@ Eigen::VectorXd DeformationMetrics::fibreLengthRatios(const Eigen::Matrix3Xd& pa
   return ratios;
 }
 
-SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
-                                         const BoneTransforms& bone_transforms) const {
-  const auto start = std::chrono::steady_clock::now();
-  if (surfaces.size() != muscle_names_.size())
-    throw MetricsError("metrics: " + std::to_string(surfaces.size()) + " deformed surfaces for " +
-                       std::to_string(muscle_names_.size()) + " muscles");
-  if (particle_positions.cols() != particle_count_)
-    throw MetricsError("metrics: " + std::to_string(particle_positions.cols()) + " particle positions, the system has " +
-                       std::to_string(particle_count_));
-  // Test a vertex against a posed bone by taking it back into the bone's rest frame; only vertices within the bone's
-  // box can be inside it.
-  const std::size_t bone_count = bone_fields_.size();
-  std::vector<Eigen::Isometry3d> to_rest(bone_count, Eigen::Isometry3d::Identity());
-  std::vector<AlignedBox> posed_box(bone_count);
-  std::vector<BoneDistanceField::Probe> probes;
-  for (std::size_t b = 0; b < bone_count; ++b) {
-    const Eigen::Isometry3d to_pose = b < bone_transforms.size() ? bone_transforms[b] : Eigen::Isometry3d::Identity();
-    to_rest[b] = to_pose.inverse();
-    posed_box[b] = bone_fields_[b]->reachIn(to_pose);
-    probes.push_back(bone_fields_[b]->probe());
+namespace {
+
+// The bones placed by one pose, for testing many points: each bone's world-to-rest transform, its box in the world and
+// a probe of its field. A point is taken back into a bone's rest frame and read only where its last read (`reads`)
+// does not already prove it out of that bone.
+class PosedBones {
+ public:
+  PosedBones(const std::vector<std::shared_ptr<const BoneDistanceField>>& fields, const BoneTransforms& transforms) {
+    for (std::size_t b = 0; b < fields.size(); ++b) {
+      const Eigen::Isometry3d to_pose = b < transforms.size() ? transforms[b] : Eigen::Isometry3d::Identity();
+      to_rest_.push_back(to_pose.inverse());
+      box_.push_back(fields[b]->reachIn(to_pose));
+      probes_.push_back(fields[b]->probe());
+    }
   }
 
-  // The bones whose posed box a set of points' box meets: only those can hold one of the points.
-  std::vector<std::size_t> near;
-  const auto bonesNear = [&](const auto& points) {
-    near.clear();
+  // Only bones whose box meets the box of `points` are tested by the calls to inside() that follow.
+  template <class Points>
+  void lookNear(const Points& points) {
+    near_.clear();
     if (points.cols() == 0) return;
     const Eigen::Vector3d low = points.rowwise().minCoeff(), high = points.rowwise().maxCoeff();
-    for (std::size_t b = 0; b < bone_count; ++b)
-      if ((high.array() >= posed_box[b].min.array()).all() && (low.array() <= posed_box[b].max.array()).all())
-        near.push_back(b);
-  };
-  // Whether point k (of `reads`) is inside any of the `near` bones; if so, raises `deepest` (and names its bone) where
-  // it lies deeper. A point is read only where it may have come into a bone since its last read proved it out.
-  const auto insideBone = [&](std::vector<FieldReadCache>& reads, Eigen::Index k, const Eigen::Vector3d& point,
-                              double& deepest, std::string& deepest_bone, int own_bone = -1) {
+    for (std::size_t b = 0; b < box_.size(); ++b)
+      if ((high.array() >= box_[b].min.array()).all() && (low.array() <= box_[b].max.array()).all()) near_.push_back(b);
+  }
+
+  // Whether point k (of `reads`, one cache per bone) is inside any bone near but `ignored_bone`; raises `deepest` and
+  // sets `deepest_bone` where it lies deeper.
+  bool inside(std::vector<FieldReadCache>& reads, Eigen::Index k, const Eigen::Vector3d& point, double& deepest,
+              int& deepest_bone, int ignored_bone = -1) {
     bool inside = false;
-    for (const std::size_t b : near) {
-      if (static_cast<int>(b) == own_bone) continue;
-      if ((point.array() < posed_box[b].min.array()).any() || (point.array() > posed_box[b].max.array()).any())
-        continue;
-      const Eigen::Vector3d local = to_rest[b] * point;
+    for (const std::size_t b : near_) {
+      if (static_cast<int>(b) == ignored_bone) continue;
+      if ((point.array() < box_[b].min.array()).any() || (point.array() > box_[b].max.array()).any()) continue;
+      const Eigen::Vector3d local = to_rest_[b] * point;
       if (reads[b].provenBeyond(k, local, 0.0)) continue;
       double distance = 0;
       Eigen::Vector3d unused;
-      const bool closer = probes[b].closerThan(local, 0.0, distance, unused);
+      const bool closer = probes_[b].closerThan(local, 0.0, distance, unused);
       reads[b].remember(k, local, distance);
       if (!closer) continue;
       inside = true;
       if (-distance > deepest) {
         deepest = -distance;
-        deepest_bone = bone_names_[b];
+        deepest_bone = static_cast<int>(b);
       }
     }
     return inside;
-  };
+  }
 
+ private:
+  std::vector<Eigen::Isometry3d> to_rest_;
+  std::vector<AlignedBox> box_;
+  std::vector<BoneDistanceField::Probe> probes_;
+  std::vector<std::size_t> near_;
+};
+
+}  // namespace
+
+SceneMetrics DeformationMetrics::measureParticles(const Eigen::Matrix3Xd& particle_positions,
+                                                  const BoneTransforms& bone_transforms) const {
+  if (particle_positions.cols() != particle_count_)
+    throw MetricsError("metrics: " + std::to_string(particle_positions.cols()) + " particle positions, the system has " +
+                       std::to_string(particle_count_));
   SceneMetrics scene;
   scene.muscles.resize(muscle_names_.size());
-  for (std::size_t m = 0; m < muscle_names_.size(); ++m) {
-    MuscleMetrics& out = scene.muscles[m];
-    const Vertices& surface = surfaces[m];
-    if (surface.cols() <= muscle_triangles_[m].maxCoeff())
-      throw MetricsError("muscle '" + muscle_names_[m] + "': deformed surface has " + std::to_string(surface.cols()) +
-                         " vertices, fewer than its triangles refer to");
-    out.name = muscle_names_[m];
-    out.rest_volume_m3 = rest_volume_[m];
-    out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
-    out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
-    std::vector<FieldReadCache>& reads = vertex_reads_[m];
-    for (FieldReadCache& cache : reads)
-      if (cache.size() != surface.cols()) cache = FieldReadCache(surface.cols());  // another surface: nothing known
-    bonesNear(surface);
-    for (Eigen::Index v = 0; v < surface.cols(); ++v)
-      out.vertices_inside_bone +=
-          insideBone(reads, v, surface.col(v), out.max_inside_bone_depth_m, out.deepest_bone);
-    scene.vertices_inside_bone += out.vertices_inside_bone;
-    scene.max_inside_bone_depth_m = std::max(scene.max_inside_bone_depth_m, out.max_inside_bone_depth_m);
-    scene.volume_error_mean_pct += std::abs(out.volume_error_pct);
-    scene.volume_error_max_pct = std::max(scene.volume_error_max_pct, std::abs(out.volume_error_pct));
-  }
-  if (!scene.muscles.empty()) scene.volume_error_mean_pct /= static_cast<double>(scene.muscles.size());
-
-  // Particles in runs of one muscle (a muscle's particles are consecutive); its tendon anchors, a run of -1 after
-  // them, are the bones' own points and skipped.
+  for (std::size_t m = 0; m < muscle_names_.size(); ++m) scene.muscles[m].name = muscle_names_[m];
+  PosedBones bones(bone_fields_, bone_transforms);
+  // In runs of one muscle (a muscle's particles are consecutive); its tendon anchors, a run of -1 after them, are the
+  // bones' own points and skipped.
   for (Eigen::Index begin = 0; begin < particle_count_;) {
     const int muscle = particle_muscle_[static_cast<std::size_t>(begin)];
     Eigen::Index end = begin;
     while (end < particle_count_ && particle_muscle_[static_cast<std::size_t>(end)] == muscle) ++end;
     if (muscle >= 0) {
-      bonesNear(particle_positions.middleCols(begin, end - begin));
+      bones.lookNear(particle_positions.middleCols(begin, end - begin));
       MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
+      int deepest_bone = -1;
       for (Eigen::Index i = begin; i < end; ++i)
-        out.particles_inside_bone +=
-            insideBone(particle_reads_, i, particle_positions.col(i), out.max_particle_inside_bone_depth_m,
-                       out.deepest_particle_bone, particle_own_bone_[static_cast<std::size_t>(i)]);
+        out.particles_inside_bone += bones.inside(particle_reads_, i, particle_positions.col(i),
+                                                  out.max_particle_inside_bone_depth_m, deepest_bone,
+                                                  particle_own_bone_[static_cast<std::size_t>(i)]);
+      if (deepest_bone >= 0) out.deepest_particle_bone = bone_names_[static_cast<std::size_t>(deepest_bone)];
     }
     begin = end;
   }
@@ -335,6 +322,40 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
     scene.max_particle_inside_bone_depth_m =
         std::max(scene.max_particle_inside_bone_depth_m, out.max_particle_inside_bone_depth_m);
   }
+  return scene;
+}
+
+SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
+                                         const BoneTransforms& bone_transforms) const {
+  const auto start = std::chrono::steady_clock::now();
+  if (surfaces.size() != muscle_names_.size())
+    throw MetricsError("metrics: " + std::to_string(surfaces.size()) + " deformed surfaces for " +
+                       std::to_string(muscle_names_.size()) + " muscles");
+  SceneMetrics scene = measureParticles(particle_positions, bone_transforms);
+  PosedBones bones(bone_fields_, bone_transforms);
+  for (std::size_t m = 0; m < muscle_names_.size(); ++m) {
+    MuscleMetrics& out = scene.muscles[m];
+    const Vertices& surface = surfaces[m];
+    if (surface.cols() <= muscle_triangles_[m].maxCoeff())
+      throw MetricsError("muscle '" + muscle_names_[m] + "': deformed surface has " + std::to_string(surface.cols()) +
+                         " vertices, fewer than its triangles refer to");
+    out.rest_volume_m3 = rest_volume_[m];
+    out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
+    out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
+    std::vector<FieldReadCache>& reads = vertex_reads_[m];
+    for (FieldReadCache& cache : reads)
+      if (cache.size() != surface.cols()) cache = FieldReadCache(surface.cols());  // another surface: nothing known
+    bones.lookNear(surface);
+    int deepest_bone = -1;
+    for (Eigen::Index v = 0; v < surface.cols(); ++v)
+      out.vertices_inside_bone += bones.inside(reads, v, surface.col(v), out.max_inside_bone_depth_m, deepest_bone);
+    if (deepest_bone >= 0) out.deepest_bone = bone_names_[static_cast<std::size_t>(deepest_bone)];
+    scene.vertices_inside_bone += out.vertices_inside_bone;
+    scene.max_inside_bone_depth_m = std::max(scene.max_inside_bone_depth_m, out.max_inside_bone_depth_m);
+    scene.volume_error_mean_pct += std::abs(out.volume_error_pct);
+    scene.volume_error_max_pct = std::max(scene.volume_error_max_pct, std::abs(out.volume_error_pct));
+  }
+  if (!scene.muscles.empty()) scene.volume_error_mean_pct /= static_cast<double>(scene.muscles.size());
 
   const Eigen::VectorXd ratios = fibreLengthRatios(particle_positions);
   std::vector<double> sum(muscle_names_.size(), 0.0);

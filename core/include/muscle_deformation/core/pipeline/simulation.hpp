@@ -84,6 +84,8 @@ class MuscleSimulation {
 
   const MassSpringSystem& system() const { return system_; }
   const ParticleState& state() const { return state_; }
+  // The bones' transforms the last solve (or continueFrom) placed them with, indexed like bones().
+  const BoneTransforms& boneTransforms() const { return previous_transforms_; }
   const std::vector<Muscle>& muscles() const { return muscles_; }
   const std::vector<Bone>& bones() const { return bones_; }
   const ModelBuildReport& buildReport() const { return build_report_; }

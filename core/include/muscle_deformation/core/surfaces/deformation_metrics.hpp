@@ -104,6 +104,10 @@ class DeformationMetrics {
   SceneMetrics measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
                        const BoneTransforms& bone_transforms) const;
 
+  // The particles' part of measure() alone (no surfaces needed): per muscle, its particles inside a bone and the
+  // deepest (MuscleMetrics::particles_inside_bone); the other figures stay 0. Shares measure()'s memory of reads.
+  SceneMetrics measureParticles(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms) const;
+
   // Pieces, usable alone.
   // Rest volume of muscle m (positive whatever its winding).
   double restVolume(int muscle) const { return rest_volume_[muscle]; }
