@@ -9,11 +9,17 @@ FIBRE_REPORT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".
 
 
 def render(rows, bone_rows, reg, params, results):
-    thr_frac, thr_depth = 0.02, 3.0
-    failing = [n for n, r in results.items() if r["inside_fraction"] >= thr_frac or r["max_depth_mm"] >= thr_depth]
+    thr_depth = 1.0
+    failing = [n for n, r in results.items()
+               if r["max_depth_mm"] > thr_depth or r.get("fibre_max_depth_mm", 0.0) > thr_depth]
     ra = params["vhf_rest_angles_rad"]
     fr, pr = params["femur_registration"], params["pelvis_registration"]
     notes = "\n".join("- `%s`: %s" % (k, "; ".join(v)) for k, v in sorted(params["notes"].items()))
+    ro = params["rest_overlaps"]
+    overlap_rows = ["| %s | %.1f | %d | %.1f | %.1f | %+.1f %% | %.2f | %d |" % (
+        n, r["max_displacement_mm"], r["moved_vertices"], r["volume_before_ml"], r["volume_after_ml"],
+        100 * (r["volume_after_ml"] / r["volume_before_ml"] - 1), r["min_normal_cosine"], r["self_intersections"])
+        for n, r in ro["muscles"].items()]
     deg = lambda v: ", ".join("%.1f" % np.degrees(a) for a in v)  # noqa: E731
     text = f"""# Bundled scene data
 
@@ -69,16 +75,23 @@ consistently outward-wound shell (VTK `vtkFeatureEdges` + own vertex-link
 test). Inside = fraction of the muscle's vertices inside any bone mesh of the
 URDF at rest (`vtkSelectEnclosedPoints`, exact parity test against the closed
 bone surfaces); depth = largest distance of such a vertex to that bone's
-surface.
+surface. Fibre points = the fibre polylines of `fibres/<name>.vtk` sampled
+every 0.25 mm, so their depth bounds that of every particle the model builder
+places on them (`tools/scene/overlaps.py`; the core test
+`BundledRestOverlap.*` checks the same with the product's bone distance
+fields and the node's particles).
 
-| muscle | tags | triangles | vertices | closed, 2-manifold | rest volume (ml) | inside a bone | max depth (mm) | deepest bone |
-| --- | --- | ---: | ---: | --- | ---: | ---: | ---: | --- |
+| muscle | tags | triangles | vertices | closed, 2-manifold | rest volume (ml) | inside a bone | max depth (mm) | deepest bone | fibre points max depth (mm) | deepest bone |
+| --- | --- | ---: | ---: | --- | ---: | ---: | ---: | --- | ---: | --- |
 {chr(10).join(rows)}
 
 ## Bones (URDF collision = visual meshes)
 
-| mesh | link | triangles | closed, 2-manifold | volume (ml) |
-| --- | --- | ---: | --- | ---: |
+Self-intersections = pairs of triangles sharing no vertex of which an edge of
+one crosses the other.
+
+| mesh | link | triangles | closed, 2-manifold | volume (ml) | self-intersections |
+| --- | --- | ---: | --- | ---: | ---: |
 {chr(10).join(bone_rows)}
 
 ## Registration of the substituted OpenSim femur and hip bone
@@ -102,25 +115,61 @@ muscles are the measured data, the generic bone is the stand-in).
 Build notes (repairs, adjustments):
 {notes}
 
-### Penetration target (< 2 % of vertices, < 3 mm)
+### Rest overlaps (target: no muscle surface vertex or fibre point more than 1 mm inside a bone)
 
 {"All muscles meet it." if not failing else "Not met by: " + ", ".join("`%s`" % n for n in failing) + "."}
-{"" if not failing else '''
-Why: the hip bone is the generic gait2392 surface (242 triangles before
+
+The hip bone is the generic gait2392 surface (242 triangles before
 subdivision), much coarser and differently shaped than the VHF hip bone
-(female, wider, different iliac wing and ischium). The gluteus minimus and
-medius lie directly on the outer face of the iliac wing, iliacus on its inner
-face, piriformis and the obturators on the greater sciatic notch and the
-obturator foramen; where the generic wing is placed or curved differently
-(the VHF iliacus runs through the generic iliac wing), no per-axis-scaled
-rigid transform lets all of them sit outside. The local adjustment is capped
-(6 mm per vertex on the hip bone, 8 mm on the femur, stopped before the bone
-loses 15 % of its volume) because pushing further turned the thin generic
-wing ragged and folded, which is worse for contact than a few millimetres of
-overlap. Remaining overlap with the VHF sacrum (piriformis) is between two VHF
-segmentations (after decimation of both), not a registration issue. A better
-fix needs a real hip-bone surface for this subject (e.g. a VHF hip bone, or a
-non-rigid fit of the generic one to all hip muscles at once).'''}
+(female, wider, different iliac wing and ischium); the VHF iliacus runs
+through the generic iliac wing, and the gluteus minimus, the obturator
+internus and the gemelli lie where the generic bone is thicker than the room
+the VHF muscles leave it. The capped adjustment above (`deform_out`, 6 mm on
+the hip bone, 8 mm on the femur) left muscle surfaces up to 10.4 mm inside a
+bone (obturator internus; iliacus 8.3 mm), and the piriformis 4.1 mm inside
+the VHF sacrum (two VHF segmentations, after decimation of both). A particle
+that starts inside a bone stays there (collision keeps it no deeper than at
+rest), so these overlaps are solved once at build time
+(`build_scene.py: resolve_rest_overlaps`, `rest_overlaps.py`):
+
+**Muscle side.** Each muscle surface is pushed out of every bone by one
+smooth displacement (vertices inside a bone go to its surface plus 0.4 mm;
+where a bone vertex pokes into the muscle between its vertices, the closest
+muscle triangle goes past it; the pushes are spread by a least-squares fit
+with a Gaussian smoothness term over vertices within 6 mm in space), from the
+VHF surface, topology unchanged; a round that would turn a triangle over or
+make the surface intersect itself is halved, or not taken (the pushing
+stops there).
+Their fibres are generated from the moved surfaces.
+
+What it cannot do: where a plate of the generic bone passes through a muscle
+(the iliac wing through the iliacus, the ischium through the obturator
+internus) the muscle's vertices are pushed to opposite faces of the plate,
+the muscle is squeezed until it would fold, and the plate stays inside
+(table above). Tried and measured, and not kept:
+
+- non-rigid fits of the hip bone alone (a smooth displacement field moving the
+  bone out of the muscle volumes, the acetabulum held; per vertex, and as a
+  coarse-to-fine sum of radial functions): the pushes of the muscles on the
+  two sides of the generic wing oppose each other; the fits lost 6-28 % of
+  the bone's volume and tore or folded the wing, with muscles still up to
+  13 mm inside;
+- alternating the muscle side with further inward moves of the hip bone
+  (`resolve_rest_overlaps(cycles=6)`): every surface vertex within 1.2 mm, but
+  the hip bone moved in by up to 18 mm and its iliac wing and ischium
+  crumpled (volume -7 %, self-intersecting triangle pairs 117 -> 235).
+
+A clean fix needs a hip bone that fits this subject (a VHF hip bone, or a
+generic one re-shaped with anatomical guidance: the wing between the iliacus
+and the gluteal muscles).
+
+| changed muscle | max displacement (mm) | vertices moved > 0.1 mm | rest volume before (ml) | after (ml) | change | smallest cosine of a triangle's turn | self-intersections |
+| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |
+{chr(10).join(overlap_rows)}
+
+The bones are not changed by this step. The generic hip bone already
+intersects itself after its repair, subdivision and registration (118 pairs
+of triangles, as `hip_l`; bones table).
 """
     return text + fibre_section()
 
