@@ -32,7 +32,6 @@ from scipy.spatial import cKDTree
 from vtk.util.numpy_support import vtk_to_numpy
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import rest_overlaps as ro  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -442,59 +441,6 @@ def deform_out(bone_pd, muscle_pts, margin=0.5e-3, sigma=3e-3, iters=25, max_ste
     return sl.make_pd(P, T), float(moved.max()), len(Q)
 
 
-def resolve_rest_overlaps(muscles, bones, hip_centre, cycles=0, hip_step=3e-3):
-    """Muscles out of the bones at rest (scene frame; muscles {name: pd}, bones {mesh: pd}).
-
-    The capped adjustment (deform_out) leaves VHF muscle surfaces up to about
-    10 mm inside the generic hip bone, where the bone is thicker than the room
-    the muscles leave it. Every muscle surface is pushed out of every bone with
-    a smooth displacement (rest_overlaps.push_out_of_bones, from the VHF
-    surface); a muscle the bones do not reach is returned unchanged.
-
-    With cycles > 0 each of `cycles` rounds then moves the hip bone surface
-    inward by at most `hip_step` under the muscle vertices still inside it
-    (deform_out, 4 mm Gaussian) and pushes the muscles again. Measured with 6
-    rounds: every surface vertex within 1.2 mm of the bones, but the hip bone
-    moved inward by up to 18 mm, its iliac wing and ischium crumpled (volume
-    -7 %, self-intersecting triangle pairs 117 -> 235), so it is off (0).
-    Returns (muscles, hip bone, stats for build_params.json)."""
-    hip0 = bones["hip_r"]
-    hip = hip0
-    out = dict(muscles)
-    for cycle in range(cycles + 1):
-        rb = [ro.Bone(b, hip if b == "hip_r" else pd) for b, pd in sorted(bones.items())]
-        last = cycle == cycles
-        # the last word gets longer to converge: nothing follows it
-        results = {n: ro.push_out_of_bones(pd, rb, rounds=300 if last else 100) for n, pd in muscles.items()}
-        out = {n: r[0] for n, r in results.items()}
-        if last:
-            break
-        pts = np.concatenate([sl.pd_points(pd) for pd in out.values()])
-        hip, _, _ = deform_out(hip, pts, sigma=4e-3, iters=10, max_step=1e-3, max_total=hip_step)
-    stats = {"muscles": {}}
-    for n, (pd, D, used, left) in results.items():
-        if used == 0:
-            continue
-        dn = np.linalg.norm(D, axis=1)
-        stats["muscles"][n] = {
-            "max_displacement_mm": float(dn.max() * 1e3), "moved_vertices": int((dn > 1e-4).sum()),
-            "volume_before_ml": sl.volume(muscles[n]) * 1e6, "volume_after_ml": sl.volume(pd) * 1e6,
-            "rounds": used, "vertices_left_inside": left, "min_normal_cosine": ro.normal_flips(muscles[n], pd),
-            "self_intersections": ro.self_intersections(pd)}
-        print("rest overlap %-26s moved up to %.1f mm, volume %.1f -> %.1f ml, %d vertices still inside"
-              % (n, stats["muscles"][n]["max_displacement_mm"], stats["muscles"][n]["volume_before_ml"],
-                 stats["muscles"][n]["volume_after_ml"], left),
-              flush=True)
-    P0, P1 = sl.pd_points(hip0), sl.pd_points(hip)
-    dn = np.linalg.norm(P1 - P0, axis=1)
-    near = np.linalg.norm(P0 - hip_centre, axis=1) < 0.035
-    stats["hip_r"] = {"cycles": cycles, "max_displacement_mm": float(dn.max() * 1e3),
-                      "max_displacement_within_35mm_of_hip_centre_mm": float(dn[near].max() * 1e3),
-                      "volume_before_ml": sl.volume(hip0) * 1e6, "volume_after_ml": sl.volume(hip) * 1e6,
-                      "self_intersections": ro.self_intersections(hip)}
-    return out, hip, stats
-
-
 def subdivide(pd, levels):
     """Butterfly subdivision: interpolating, so the coarse OpenSim bone keeps its
     vertices and size while its facets are smoothed for display and contact."""
@@ -575,6 +521,10 @@ def main():
     def shift(pd, origin):
         return sl.transform_pd(pd, lambda P: P - origin)
 
+    # muscles: scene (= pelvis link) frame
+    for name, (_, pd) in muscles.items():
+        sl.write_stl(shift(pd, O), out_path("data", "meshes", "muscles", name + ".stl"))
+
     # bones in link frames
     bones = {}
     bone_notes = {"femur_r": fnotes, "hip_r": pnotes, "hip_l": plnotes}
@@ -600,23 +550,6 @@ def main():
         pd = process_closed(to_ros_pd(vhf(stem)), BONE_TRIS, bone_notes, b)
         bones[b] = ("tibia_r", shift(shift(pd, O), K))
     bones["patella_r"] = ("patella_r", shift(shift(patella_pd, O), Pc))
-
-    # ---- rest overlaps left after the capped adjustment: solved out of the muscles, with a further local
-    # adjustment of the hip bone under what the muscle side leaves (see resolve_rest_overlaps)
-    link_origin = {"pelvis": np.zeros(3), "femur_r": H, "tibia_r": K, "patella_r": Pc}
-    muscles_scene = {name: shift(pd, O) for name, (_, pd) in muscles.items()}
-    bones_scene = {b: sl.transform_pd(pd, lambda P, o=link_origin[link]: P + o) for b, (link, pd) in bones.items()}
-    muscles_scene, hip_r_scene, overlap_stats = resolve_rest_overlaps(muscles_scene, bones_scene, H)
-    bones["hip_r"] = ("pelvis", hip_r_scene)
-    if overlap_stats["hip_r"]["cycles"]:
-        bone_notes["hip_r"].append("rest overlaps: surface moved further inward by up to %.1f mm under the muscle "
-                                   "vertices the muscle side left inside it (%d rounds)"
-                                   % (overlap_stats["hip_r"]["max_displacement_mm"], overlap_stats["hip_r"]["cycles"]))
-
-    # muscles: scene (= pelvis link) frame
-    for name, pd in muscles_scene.items():
-        sl.write_stl(pd, out_path("data", "meshes", "muscles", name + ".stl"))
-
     for b, (_, pd) in bones.items():
         if sl.signed_volume(pd) < 0:
             pd = sl.flip_winding(pd)
@@ -648,7 +581,6 @@ def main():
             "pelvis_tilt_list_rotation": body_fixed_zxy(Rp).tolist(),
             "hip_flexion_adduction_rotation": body_fixed_zxy(Rp.T @ Rf).tolist()},
         "notes": {k: v for k, v in {**log, **bone_notes}.items() if v},
-        "rest_overlaps": overlap_stats,
     }
     with open(out_path("tools", "scene", "build_params.json"), "w") as f:
         json.dump(params, f, indent=1, sort_keys=True)

@@ -24,7 +24,6 @@ import yaml
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import overlaps  # noqa: E402
-import rest_overlaps  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 PKG = sl.PKG
@@ -139,7 +138,7 @@ def main():
         ok = bb == 0 and nm == 0 and sl.nonmanifold_vertices(pd) == 0 and sl.signed_volume(pd) > 0
         bone_rows.append("| %s | %s | %d | %s | %.1f | %d |" % (b, link, pd.GetNumberOfCells(),
                                                                "yes" if ok else "NO", sl.volume(pd) * 1e6,
-                                                               rest_overlaps.self_intersections(pd)))
+                                                               sl.self_intersections(pd)))
     head = np.array(params["registered_femoral_head_centre"])
     hip = np.array(params["hip_centre"])
     pel_hip = np.array(params["registered_pelvis_hip_centre"])
