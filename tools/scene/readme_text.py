@@ -15,11 +15,25 @@ def render(rows, bone_rows, reg, params, results):
     ra = params["vhf_rest_angles_rad"]
     fr, pr = params["femur_registration"], params["pelvis_registration"]
     notes = "\n".join("- `%s`: %s" % (k, "; ".join(v)) for k, v in sorted(params["notes"].items()))
-    ro = params["rest_overlaps"]
-    overlap_rows = ["| %s | %.1f | %d | %.1f | %.1f | %+.1f %% | %.2f | %d |" % (
-        n, r["max_displacement_mm"], r["moved_vertices"], r["volume_before_ml"], r["volume_after_ml"],
-        100 * (r["volume_after_ml"] / r["volume_before_ml"] - 1), r["min_normal_cosine"], r["self_intersections"])
-        for n, r in ro["muscles"].items()]
+    carve = params["carve"]
+    carve_rows = ["| %s | %s | %.1f -> %.1f (%+.1f %%) | %.1f (%s) | %d -> %d -> %d | %s | %d -> %d | %s |" % (
+        b, ", ".join(r["muscles_overlapping"]), r["volume_before_ml"], r["volume_after_ml"],
+        100 * (r["volume_after_ml"] / r["volume_before_ml"] - 1), r["carve_depth_mm"], r["carve_depth_muscle"],
+        r["triangles_before"], r["triangles_remeshed"], r["triangles_after"],
+        "yes" if r["closed_manifold_after"] else "NO", r["self_intersections_before"], r["self_intersections_after"],
+        "%d, %.2g mm³ in all" % (len(r["pieces_dropped_ml"]), sum(r["pieces_dropped_ml"]) * 1e3)
+        if r["pieces_dropped_ml"] else "none")
+        for b, r in sorted(carve.items())]
+    joint_rows = ["| %s | %.1f | %.2f | %.2f | %.2f | %.2f -> %.2f |" % (
+        b, r["closest_removed_voxel_to_joint_centre_mm"], r["uncarved_joint_region_surface_change_mm"],
+        r["joint_region_surface_change_mm"], r["joint_region_sphere_centre_shift_mm"],
+        *r["joint_region_sphere_radius_mm"])
+        for b, r in sorted(carve.items()) if "joint_region_radius_mm" in r]
+    joint_radius = next(r["joint_region_radius_mm"] for r in carve.values() if "joint_region_radius_mm" in r)
+    clearance = next(iter(carve.values()))["clearance_mm"]
+    voxel = next(iter(carve.values()))["voxel_mm"]
+    within = sorted({m for r in carve.values() for m in r["muscles_within_clearance"]}
+                    - {m for r in carve.values() for m in r["muscles_overlapping"]})
     deg = lambda v: ", ".join("%.1f" % np.degrees(a) for a in v)  # noqa: E731
     text = f"""# Bundled scene data
 
@@ -119,57 +133,73 @@ Build notes (repairs, adjustments):
 
 {"All muscles meet it." if not failing else "Not met by: " + ", ".join("`%s`" % n for n in failing) + "."}
 
-The hip bone is the generic gait2392 surface (242 triangles before
-subdivision), much coarser and differently shaped than the VHF hip bone
-(female, wider, different iliac wing and ischium); the VHF iliacus runs
-through the generic iliac wing, and the gluteus minimus, the obturator
-internus and the gemelli lie where the generic bone is thicker than the room
-the VHF muscles leave it. The capped adjustment above (`deform_out`, 6 mm on
-the hip bone, 8 mm on the femur) left muscle surfaces up to 10.4 mm inside a
-bone (obturator internus; iliacus 8.3 mm), and the piriformis 4.1 mm inside
+The hip bone and femur are the generic gait2392 surfaces, coarser and
+differently shaped than the VHF bones (female, wider pelvis, different iliac
+wing and ischium): after the registration and the capped adjustment above the
+VHF iliacus ran through the generic iliac wing (8.3 mm deep), the obturator
+internus through the ischium (10.2 mm), and the piriformis lay 4.1 mm inside
 the VHF sacrum (two VHF segmentations, after decimation of both). A particle
-that starts inside a bone stays there (collision keeps it no deeper than at
-rest), so these overlaps are solved once at build time
-(`build_scene.py: resolve_rest_overlaps`, `rest_overlaps.py`):
+that starts inside a bone stays there (collision keeps it no deeper than it
+lay at rest), so the overlaps are solved once, at build time, on the bone
+side: the muscles are the measured data and stay exactly as segmented.
 
-**Muscle side.** Each muscle surface is pushed out of every bone by one
-smooth displacement (vertices inside a bone go to its surface plus 0.4 mm;
-where a bone vertex pokes into the muscle between its vertices, the closest
-muscle triangle goes past it; the pushes are spread by a least-squares fit
-with a Gaussian smoothness term over vertices within 6 mm in space), from the
-VHF surface, topology unchanged; a round that would turn a triangle over or
-make the surface intersect itself is halved, or not taken (the pushing
-stops there).
-Their fibres are generated from the moved surfaces.
+## Bones carved by the muscles
 
-What it cannot do: where a plate of the generic bone passes through a muscle
-(the iliac wing through the iliacus, the ischium through the obturator
-internus) the muscle's vertices are pushed to opposite faces of the plate,
-the muscle is squeezed until it would fold, and the plate stays inside
-(table above). Tried and measured, and not kept:
+Every bone that a muscle overlaps at rest is replaced by the bone minus the
+union of all muscle volumes grown by a clearance of **{clearance:.1f} mm**
+(`build_scene.py` -> `carve.py`): the bone and the muscles become OpenVDB
+level sets on one {voxel:.1f} mm voxel lattice (mesh to level set), the CSG
+difference max(bone, clearance - muscles) is taken on the voxels, the result is
+turned back into a closed mesh (level set to mesh), disconnected pieces under
+1 % of the bone's volume are dropped, and VTK quadric decimation (in stages,
+each result checked: closed, 2-manifold, consistently outward wound, no
+self-intersecting triangle pair) brings it back to about its former triangle
+count. The other bones are written unchanged. Bones stay in their link frames
+(nothing moves; the joint centres come from the VHF cartilages and are
+unchanged).
 
-- non-rigid fits of the hip bone alone (a smooth displacement field moving the
-  bone out of the muscle volumes, the acetabulum held; per vertex, and as a
-  coarse-to-fine sum of radial functions): the pushes of the muscles on the
-  two sides of the generic wing oppose each other; the fits lost 6-28 % of
-  the bone's volume and tore or folded the wing, with muscles still up to
-  13 mm inside;
-- alternating the muscle side with further inward moves of the hip bone
-  (`resolve_rest_overlaps(cycles=6)`): every surface vertex within 1.2 mm, but
-  the hip bone moved in by up to 18 mm and its iliac wing and ischium
-  crumpled (volume -7 %, self-intersecting triangle pairs 117 -> 235).
+Why these values (measured on this scene; depths read as the core reads
+them, from its 1 mm-voxel bone distance fields, `BundledRestOverlap`):
+clearance 0.5 mm leaves the deepest muscle surface vertex 0.22 mm inside a
+bone field (0 mm by the exact test against the meshes), clearance 0.25 mm
+0.51 mm (0.14 mm exact): what decimation and the fields' interpolation move
+the surface back towards the muscles. A 0.25 mm lattice needed 7.7 GB and
+4.5 min for the hip bone, and no decimation schedule kept its 2.9 million
+triangle mesh manifold; 0.5 mm resolves the generic wing (2-4 mm thick).
 
-A clean fix needs a hip bone that fits this subject (a VHF hip bone, or a
-generic one re-shaped with anatomical guidance: the wing between the iliacus
-and the gluteal muscles).
+| bone | overlapping muscles | volume (ml) | carve depth (mm, muscle) | triangles before -> remeshed -> after | closed, 2-manifold | self-intersecting pairs | pieces dropped |
+| --- | --- | ---: | ---: | ---: | --- | ---: | --- |
+{chr(10).join(carve_rows)}
 
-| changed muscle | max displacement (mm) | vertices moved > 0.1 mm | rest volume before (ml) | after (ml) | change | smallest cosine of a triangle's turn | self-intersections |
-| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |
-{chr(10).join(overlap_rows)}
+Carve depth = how far the old bone surface lay inside a muscle (deepest old
+vertex, exact test). Muscles that come within the clearance of a carved bone
+without overlapping it shape the carve too ({", ".join(within) if within else "none"}).
+The hip bone's iliac wing is left with a window where the VHF iliacus passes
+through it (the generic wing lies across the muscle), and notches where the
+gluteus minimus, the obturator internus and the inferior gemellus lay; the
+femur loses a strip of its shaft under the vasti; the sacrum a shallow dish
+under the piriformis.
 
-The bones are not changed by this step. The generic hip bone already
-intersects itself after its repair, subdivision and registration (118 pairs
-of triangles, as `hip_l`; bones table).
+Joint regions: the surface change is the largest distance between the old
+and the new surface over their vertices within a distance of the hip centre
+(two-sided); inside the closest carved voxel's distance only remeshing and
+decimation changed it. The sphere is fitted to the vertices within
+{joint_radius:.0f} mm (femoral head; acetabulum and its rim). The acetabular
+cartilage sphere has a radius of {params["vhf_landmarks_mm"]["acetabulum_radius_mm"]:.1f} mm, the
+femoral-head cartilage sphere {params["vhf_landmarks_mm"]["head_radius_mm"]:.1f} mm: the carve stays
+outside both; on the hip bone it reaches the acetabular rim, where the
+gluteus minimus and the iliacus lay over the generic rim.
+
+| bone | closest carved voxel to the hip centre (mm) | surface change inside that distance (mm) | surface change within {joint_radius:.0f} mm (mm) | sphere fit centre shift (mm) | sphere fit radius (mm) |
+| --- | ---: | ---: | ---: | ---: | ---: |
+{chr(10).join(joint_rows)}
+
+Tried before and not kept: smooth non-rigid fits of the generic hip bone to
+the muscles (the iliac wing tore or crumpled, 6-28 % of its volume lost,
+muscles still up to 13 mm inside) and pushing the muscle surfaces out of the
+bones (a plate through a muscle cannot be removed by moving the muscle's
+surface: iliacus still 6.2 mm and obturator internus 7.6 mm inside, iliacus
+11 % of its measured volume lost).
 """
     return text + fibre_section()
 
