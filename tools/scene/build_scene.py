@@ -23,6 +23,9 @@ import sys
 # (equally good) results. One thread keeps the build byte-for-byte reproducible.
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VTK_SMP_MAX_THREADS"):
     os.environ.setdefault(_v, "1")
+# OpenVDB (the bone carve, carve.py) runs on TBB, which sizes its thread pool from
+# the CPU affinity mask: one CPU (the one the build starts on) keeps it to one thread.
+os.sched_setaffinity(0, {int(open("/proc/self/stat").read().rsplit(")", 1)[1].split()[36])})
 
 import numpy as np  # noqa: E402
 import vtk  # noqa: E402
@@ -32,6 +35,7 @@ from scipy.spatial import cKDTree
 from vtk.util.numpy_support import vtk_to_numpy
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import carve  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -78,6 +82,7 @@ QUADRICEPS = {"rectus_femoris", "vastus_lateralis", "vastus_medialis", "vastus_i
 
 TARGET_TRIS = 4000      # muscle decimation target (triangles)
 BONE_TRIS = 4000        # VHF bone decimation target
+JOINT_REGION_RADIUS = 0.035  # m: the femoral head and acetabulum lie within this of the hip centre
 SDF_SPACING = 0.0015    # m, signed-distance grid used by the registrations
 
 
@@ -550,10 +555,25 @@ def main():
         pd = process_closed(to_ros_pd(vhf(stem)), BONE_TRIS, bone_notes, b)
         bones[b] = ("tibia_r", shift(shift(pd, O), K))
     bones["patella_r"] = ("patella_r", shift(shift(patella_pd, O), Pc))
-    for b, (_, pd) in bones.items():
+    for b, (link, pd) in bones.items():
         if sl.signed_volume(pd) < 0:
-            pd = sl.flip_winding(pd)
-            bones[b] = (bones[b][0], pd)
+            bones[b] = (link, sl.flip_winding(pd))
+
+    # ---- the stand-in bones give way to the measured muscles: every bone a muscle overlaps at rest is carved
+    # by the muscles grown by a clearance (carve.py); the others are written as they are
+    link_origin = {"pelvis": np.zeros(3), "femur_r": H, "tibia_r": K, "patella_r": Pc}
+    muscles_scene = {name: shift(pd, O) for name, (_, pd) in muscles.items()}
+    bones_scene = {b: shift(pd, -link_origin[link]) for b, (link, pd) in bones.items()}
+    carved, carve_stats = carve.carve_bones(bones_scene, muscles_scene, {"hip_r": H, "femur_r": H},
+                                            JOINT_REGION_RADIUS)
+    for b in carve_stats:
+        link = bones[b][0]
+        bones[b] = (link, shift(carved[b], link_origin[link]))
+        bone_notes.setdefault(b, []).append(
+            "carved by %s (clearance %.1f mm): volume %.1f -> %.1f ml"
+            % (", ".join(carve_stats[b]["muscles_overlapping"]), carve_stats[b]["clearance_mm"],
+               carve_stats[b]["volume_before_ml"], carve_stats[b]["volume_after_ml"]))
+    for b, (_, pd) in bones.items():
         sl.write_stl(pd, out_path("data", "meshes", "bones", b + ".stl"))
         print("bone %-10s %5d triangles closed=%s" % (b, pd.GetNumberOfCells(), closed_ok(pd)), flush=True)
 
@@ -581,6 +601,7 @@ def main():
             "pelvis_tilt_list_rotation": body_fixed_zxy(Rp).tolist(),
             "hip_flexion_adduction_rotation": body_fixed_zxy(Rp.T @ Rf).tolist()},
         "notes": {k: v for k, v in {**log, **bone_notes}.items() if v},
+        "carve": carve_stats,
     }
     with open(out_path("tools", "scene", "build_params.json"), "w") as f:
         json.dump(params, f, indent=1, sort_keys=True)

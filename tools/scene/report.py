@@ -5,8 +5,10 @@ Checks, for every muscle surface: closed and 2-manifold (vtkFeatureEdges plus a
 vertex-link test), outward winding, triangle/vertex counts, rest volume; for
 every muscle at rest: the fraction of its vertices inside any bone mesh (exact
 inside test: vtkSelectEnclosedPoints against each closed bone surface) and the
-maximum depth (distance to that bone's surface). Also the registration numbers
-stored by build_scene.py.
+maximum depth (distance to that bone's surface), and the same depth for its
+fibre points (overlaps.py); for every bone mesh: closure, volume and
+self-intersections. Also the registration numbers and the rest-overlap
+resolution stored by build_scene.py.
 
 Run after build_scene.py:  PYENV_VERSION=system /usr/bin/python3 tools/scene/report.py
 """
@@ -21,6 +23,7 @@ import vtk
 import yaml
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import overlaps  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 PKG = sl.PKG
@@ -108,24 +111,34 @@ def main():
         closed = b == 0 and nm == 0 and bow == 0
         outward = sl.signed_volume(pd) > 0 and sl.consistently_oriented(pd)
         frac, worst, per_bone = muscle_penetration(pd, bones)
+        fpath = os.path.join(PKG, "config", "scenes", m["fibres"])
+        fibre_depth = (0.0, "-")
+        if os.path.exists(fpath):
+            F = np.concatenate([overlaps.densify(f) for f in overlaps.read_polylines(fpath)])
+            for b, (_, bpd) in bones.items():
+                d = overlaps.depths_in(bpd, F).max()
+                if d > fibre_depth[0]:
+                    fibre_depth = (d, b)
         results[m["name"]] = {"triangles": pd.GetNumberOfCells(), "vertices": pd.GetNumberOfPoints(),
                               "closed_manifold": bool(closed), "outward": bool(outward),
                               "components": sl.n_components(pd),
                               "volume_ml": sl.volume(pd) * 1e6, "inside_fraction": frac,
                               "max_depth_mm": worst[0] * 1e3, "worst_bone": worst[1],
+                              "fibre_max_depth_mm": fibre_depth[0] * 1e3, "fibre_worst_bone": fibre_depth[1],
                               "per_bone": {k: [v[0], v[1] * 1e3] for k, v in per_bone.items()}}
         r = results[m["name"]]
-        rows.append("| %s | %s | %d | %d | %s | %.1f | %.2f %% | %.1f | %s |" % (
+        rows.append("| %s | %s | %d | %d | %s | %.1f | %.2f %% | %.2f | %s | %.2f | %s |" % (
             m["name"], ", ".join(m["tags"]), r["triangles"], r["vertices"],
             "yes" if closed and outward else "NO", r["volume_ml"], 100 * frac, r["max_depth_mm"],
-            r["worst_bone"]))
+            r["worst_bone"], r["fibre_max_depth_mm"], r["fibre_worst_bone"]))
         print(rows[-1], flush=True)
     bone_rows = []
     for b, (link, pd) in sorted(bones.items()):
         bb, nm = sl.open_edges(pd)
         ok = bb == 0 and nm == 0 and sl.nonmanifold_vertices(pd) == 0 and sl.signed_volume(pd) > 0
-        bone_rows.append("| %s | %s | %d | %s | %.1f |" % (b, link, pd.GetNumberOfCells(),
-                                                          "yes" if ok else "NO", sl.volume(pd) * 1e6))
+        bone_rows.append("| %s | %s | %d | %s | %.1f | %d |" % (b, link, pd.GetNumberOfCells(),
+                                                               "yes" if ok else "NO", sl.volume(pd) * 1e6,
+                                                               sl.self_intersections(pd)))
     head = np.array(params["registered_femoral_head_centre"])
     hip = np.array(params["hip_centre"])
     pel_hip = np.array(params["registered_pelvis_hip_centre"])
@@ -139,7 +152,7 @@ def main():
 def write_readme(rows, bone_rows, reg, params, results):
     import readme_text
     text = readme_text.render(rows, bone_rows, reg, params, results)
-    with open(os.path.join(PKG, "data", "README.md"), "w") as f:
+    with open(os.path.join(PKG, "data", "README.md"), "w", encoding="utf-8") as f:
         f.write(text)
 
 

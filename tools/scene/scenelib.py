@@ -183,6 +183,41 @@ def consistently_oriented(pd):
     return len(np.unique(key)) == len(key)
 
 
+def self_intersections(pd):
+    """Pairs of triangles sharing no vertex of which an edge of one crosses the other."""
+    from scipy.spatial import cKDTree
+    P, T = pd_points(pd), pd_triangles(pd)
+    A, B, C = P[T[:, 0]], P[T[:, 1]], P[T[:, 2]]
+    centre = (A + B + C) / 3
+    rad = np.max(np.stack([np.linalg.norm(X - centre, axis=1) for X in (A, B, C)]), axis=0)
+    cand = cKDTree(centre).query_pairs(2 * rad.max(), output_type="ndarray")
+    if not len(cand):
+        return 0
+    a, b = cand[:, 0], cand[:, 1]
+    keep = np.linalg.norm(centre[a] - centre[b], axis=1) <= rad[a] + rad[b]
+    keep &= ~(T[a][:, :, None] == T[b][:, None, :]).any((1, 2))
+    a, b = a[keep], b[keep]
+
+    def edge_hits(s, t):
+        # does an edge of triangle s cross triangle t (Moller-Trumbore, segment parameter in [0, 1])
+        hit = np.zeros(len(s), bool)
+        o, e1, e2 = A[t], B[t] - A[t], C[t] - A[t]
+        for p, q in ((A[s], B[s]), (B[s], C[s]), (C[s], A[s])):
+            d = q - p
+            h = np.cross(d, e2)
+            det = (e1 * h).sum(1)
+            ok = np.abs(det) > 1e-18
+            f = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+            sv = p - o
+            u = f * (sv * h).sum(1)
+            qv = np.cross(sv, e1)
+            v = f * (d * qv).sum(1)
+            tt = f * (e2 * qv).sum(1)
+            hit |= ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (tt >= 0) & (tt <= 1)
+        return hit
+    return int((edge_hits(a, b) | edge_hits(b, a)).sum())
+
+
 def volume(pd):
     m = vtk.vtkMassProperties()
     m.SetInputData(pd)
