@@ -16,6 +16,7 @@
 
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/surfaces/surface_bone_contact.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
@@ -41,6 +42,7 @@ struct Variant {
   std::string label;
   SkinningSettings skinning;
   bool keep_volume = false;
+  bool keep_out_of_bones = false;  // the skin's contact with the bones, before the volume constraint
   bool node_default = false;
 };
 
@@ -65,6 +67,7 @@ struct Tally {
 struct SurfaceVariant {
   Variant variant;
   std::unique_ptr<SurfaceSkinning> skinning;
+  std::unique_ptr<SurfaceBoneContact> contact;
   std::unique_ptr<SurfaceVolumeConstraint> volume;
   // Each variant measured by its own metrics, as a node has one (they remember what they read of the bones).
   std::unique_ptr<DeformationMetrics> metrics;
@@ -73,8 +76,10 @@ struct SurfaceVariant {
 
 void measureFrame(SurfaceVariant& v, const MuscleSimulation& simulation, const BoneTransforms& transforms,
                   Tally& tally) {
-  tally.skinning_ms.push_back(bench::millisecondsOf(
-      [&] { v.skinning->update(simulation.state().position, transforms, v.surfaces); }));
+  tally.skinning_ms.push_back(bench::millisecondsOf([&] {
+    v.skinning->update(simulation.state().position, transforms, v.surfaces);
+    if (v.contact) v.contact->apply(v.surfaces, transforms);
+  }));
   std::vector<SurfaceVolumeCorrection> corrections;
   if (v.volume)
     tally.volume_ms.push_back(bench::millisecondsOf([&] { corrections = v.volume->apply(v.surfaces, transforms); }));
@@ -130,9 +135,11 @@ int main(int argc, char** argv) {
                                         SkinningMethod::mean_value}) {
       SkinningSettings skinning = node_skinning;
       skinning.method = method;
-      variants.push_back({toString(method) + (keep ? " + volume" : ""), skinning, keep, false});
+      variants.push_back({toString(method) + (keep ? " + volume" : ""), skinning, keep, false, false});
     }
   }
+  // What the node runs: the skinning, the skin's contact with the bones, then the volume constraint.
+  variants.push_back({toString(node_skinning.method) + " + bone contact + volume", node_skinning, true, true, true});
   std::vector<SurfaceVariant> surfaces;
   for (const Variant& variant : variants) {
     SurfaceVariant v;
@@ -147,6 +154,11 @@ int main(int argc, char** argv) {
       records.add("unavailable", e.what());
       records.end();
       continue;
+    }
+    if (variant.keep_out_of_bones) {
+      std::vector<Eigen::Index> vertex_counts;
+      for (const Muscle& muscle : simulation.muscles()) vertex_counts.push_back(muscle.surface.vertexCount());
+      v.contact = std::make_unique<SurfaceBoneContact>(vertex_counts, simulation.boneFields());
     }
     if (variant.keep_volume) {
       std::vector<Triangles> triangles;
@@ -209,6 +221,7 @@ int main(int argc, char** argv) {
       records.add("variant", surfaces[v].variant.label);
       records.add("skinning", toString(surfaces[v].variant.skinning.method));
       records.add("keep_volume", surfaces[v].variant.keep_volume ? 1.0 : 0.0);
+      records.add("keep_out_of_bones", surfaces[v].variant.keep_out_of_bones ? 1.0 : 0.0);
       records.add("frames", static_cast<double>(t.frames));
       records.add("volume_error_mean_pct", mean);
       records.add("volume_error_max_pct", worst);

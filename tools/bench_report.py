@@ -283,10 +283,13 @@ def fidelity_section(rows):
     for r in unavailable:
         lines.append(f"\n{r['variant']} could not be set up: {r['unavailable']}")
     if per_muscle:
-        lines += ["", "Per muscle, nearest_average without and with the volume constraint (mean / worst |volume error| "
-                      "%, deepest surface vertex inside bone mm, deepest particle inside bone mm):", "",
-                  "| muscle | gait, skinned alone | gait, volume kept | hip_flexion, skinned alone | hip_flexion, volume kept |",
-                  "|---|---|---|---|---|"]
+        lines += ["", "Per muscle, nearest_average skinned alone, with the volume constraint, and with the skin's contact "
+                      "with the bones before the volume constraint (the node's surfaces): mean / worst |volume error| %, "
+                      "deepest surface vertex inside bone mm, deepest particle inside bone mm:", "",
+                  "| muscle | gait, skinned alone | gait, volume kept | gait, bone contact and volume kept (node) | "
+                  "hip_flexion, skinned alone | hip_flexion, volume kept | hip_flexion, bone contact and volume kept "
+                  "(node) |",
+                  "|---|---|---|---|---|---|---|"]
         names = []
         for r in per_muscle:
             if r["muscle"] not in names:
@@ -294,9 +297,9 @@ def fidelity_section(rows):
         for name in names:
             cells = []
             for case in ("gait", "hip_flexion"):
-                for keep in (False, True):
+                for suffix in ("", " + volume", " + bone contact + volume"):
                     r = next((x for x in per_muscle if x["muscle"] == name and x["case"] == case
-                              and x["variant"].endswith("+ volume") == keep), None)
+                              and x["variant"] == x["variant"].split(" + ")[0] + suffix), None)
                     cells.append(f"{r['volume_error_mean_pct']:.2f} / {r['volume_error_max_pct']:.2f}, "
                                  f"{r['surface_inside_bone_max_mm']:.1f}, {r.get('particle_inside_bone_max_mm', float('nan')):.1f}"
                                  if r else "-")

@@ -339,6 +339,7 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
       }
     }
     const bool corrected = frame.volume_corrections.size() == metrics.muscles.size();
+    const bool contacted = frame.bone_corrections.size() == metrics.muscles.size();
     for (std::size_t m = 0; m < metrics.muscles.size(); ++m) {
       const MuscleMetrics& muscle = metrics.muscles[m];
       stats.muscle_names.push_back(muscle.name);
@@ -346,6 +347,9 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
       stats.muscle_skinned_volume_error_pct.push_back(
           corrected ? frame.volume_corrections[m].volume_error_before_pct : muscle.volume_error_pct);
       stats.muscle_max_surface_inside_bone_m.push_back(muscle.max_inside_bone_depth_m);
+      stats.muscle_skinned_max_surface_inside_bone_m.push_back(
+          contacted ? std::max(frame.bone_corrections[m].max_depth_before_m, muscle.max_inside_bone_depth_m)
+                    : muscle.max_inside_bone_depth_m);
       stats.muscle_max_particle_inside_bone_m.push_back(muscle.max_particle_inside_bone_depth_m);
     }
   } else {

@@ -219,6 +219,10 @@ TEST(Conversions, TheDeepestParticleInsideABoneIsNamedAndEveryMusclesFiguresAreL
   iliacus_correction.volume_error_before_pct = -3.5;
   psoas_correction.volume_error_before_pct = 1.25;
   frame.volume_corrections = {iliacus_correction, psoas_correction};
+  md::SurfaceBoneCorrection iliacus_contact, psoas_contact;
+  iliacus_contact.vertices_moved = 40;
+  iliacus_contact.max_depth_before_m = 0.009;  // the skinning put the iliacus 9 mm into the pelvis; moved out
+  frame.bone_corrections = {iliacus_contact, psoas_contact};
 
   const muscle_deformation::DeformationStats stats = node::statsToMessage(frame, std_msgs::Header());
   EXPECT_EQ(stats.particles_inside_bone, 5);
@@ -230,11 +234,15 @@ TEST(Conversions, TheDeepestParticleInsideABoneIsNamedAndEveryMusclesFiguresAreL
   EXPECT_EQ(stats.muscle_skinned_volume_error_pct, (std::vector<double>{-3.5, 1.25}));
   EXPECT_EQ(stats.muscle_max_surface_inside_bone_m, (std::vector<double>{0.0005, 0.0}));
   EXPECT_EQ(stats.muscle_max_particle_inside_bone_m, (std::vector<double>{0.0003, 0.0012}));
+  EXPECT_EQ(stats.muscle_skinned_max_surface_inside_bone_m, (std::vector<double>{0.009, 0.0}));
 
   // Without the volume constraint the skinned surface is the one shown: the same volume error.
   frame.volume_corrections.clear();
   const muscle_deformation::DeformationStats uncorrected = node::statsToMessage(frame, std_msgs::Header());
   EXPECT_EQ(uncorrected.muscle_skinned_volume_error_pct, uncorrected.muscle_volume_error_pct);
+  frame.bone_corrections.clear();
+  const muscle_deformation::DeformationStats uncontacted = node::statsToMessage(frame, std_msgs::Header());
+  EXPECT_EQ(uncontacted.muscle_skinned_max_surface_inside_bone_m, uncontacted.muscle_max_surface_inside_bone_m);
 }
 
 TEST(Conversions, ParticleCloudRoundTripsPositionsAndAttachments) {

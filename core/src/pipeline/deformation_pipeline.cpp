@@ -42,12 +42,17 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
     metrics_problem_ = settings_.measure_fidelity ? "needs the surface skinning (" + skinning_problem_ + ")"
                                                   : "turned off (surface_metrics is false)";
   }
+  // The bones the surfaces are kept out of: the fields the collision or the metrics built (one set per scene), none
+  // when neither did.
+  const BoneFields& fields = !sim.boneFields().empty() ? sim.boneFields()
+                             : metrics_                ? metrics_->boneFields()
+                                                       : BoneFields{};
+  if (skinning_ && settings_.keep_surfaces_out_of_bones && !fields.empty()) {
+    std::vector<Eigen::Index> vertex_counts;
+    for (const Muscle& muscle : sim.muscles()) vertex_counts.push_back(muscle.surface.vertexCount());
+    surface_contact_ = std::make_unique<SurfaceBoneContact>(vertex_counts, fields);
+  }
   if (skinning_ && settings_.surface_volume.keep_volume) {
-    // The bones the volume projection keeps surfaces out of: the fields the collision or the metrics built (one set
-    // per scene), none when neither did.
-    const BoneFields& fields = !sim.boneFields().empty() ? sim.boneFields()
-                               : metrics_                ? metrics_->boneFields()
-                                                         : BoneFields{};
     std::vector<Triangles> triangles;
     std::vector<Vertices> rest;
     for (std::size_t m = 0; m < skinning_->muscles().size(); ++m) {
@@ -73,6 +78,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   frame_.skinning_ms = 0;
   frame_.volume_ms = 0;
   frame_.volume_corrections.clear();
+  frame_.bone_corrections.clear();
   frame_.metrics_ms = 0;
   frame_.residual_absent_reason.clear();
   frame_.collision_absent_reason.clear();
@@ -95,6 +101,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
     skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
+    if (surface_contact_) frame_.bone_corrections = surface_contact_->apply(frame_.surfaces, frame_.bone_transforms);
     if (surface_volume_) {
       const auto volume_start = std::chrono::steady_clock::now();
       frame_.volume_corrections = surface_volume_->apply(frame_.surfaces, frame_.bone_transforms);

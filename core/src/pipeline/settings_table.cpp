@@ -152,6 +152,10 @@ std::vector<SettingSpec> buildTable() {
       choice<CageKind>("skinning_cage", {"convex_hull", "fibre_tube"}, {CageKind::convex_hull, CageKind::fibre_tube},
                        "mean_value: how the cage is triangulated",
                        [](CoreSettings& s) -> CageKind& { return s.pipeline.skinning.cage; }),
+      boolean("keep_surfaces_out_of_bones",
+              "move skinned surface vertices that lie inside a bone out to its surface (the skin's contact with the "
+              "bone; the particles are kept out by the solver, the vertices between them are not)",
+              [](CoreSettings& s) -> bool& { return s.pipeline.keep_surfaces_out_of_bones; }),
       boolean("keep_surface_volume",
               "project every skinned muscle surface back to its rest volume (the PBD volume constraint), never into a "
               "bone",

@@ -6,6 +6,7 @@
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/surfaces/surface_bone_contact.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
 
@@ -18,6 +19,9 @@ namespace muscle_deformation {
 struct PipelineSettings {
   SimulationSettings simulation;
   SkinningSettings skinning;
+  // Skinned surface vertices inside a bone are moved out to its surface (SurfaceBoneContact), before the volume
+  // constraint, which never moves one in.
+  bool keep_surfaces_out_of_bones = true;
   SurfaceVolumeSettings surface_volume;  // the skinned surfaces keep their rest volume (applied with the skinning)
   bool skin_surfaces = true;     // precompute surface skinning (needed for ~surfaces and the surface metrics)
   bool measure_fidelity = true;  // precompute the volume / surface-in-bone metrics
@@ -32,7 +36,9 @@ struct FrameResult {
   BoneTransforms bone_transforms;   // indexed by Bone::id
   bool has_surfaces = false;
   std::vector<Vertices> surfaces;   // per muscle, when has_surfaces; triangles in surfaceTriangles(muscle)
-  double skinning_ms = 0;           // skinning and the volume projection
+  double skinning_ms = 0;           // skinning, the contact with the bones and the volume projection
+  // Per muscle, what the contact with the bones did to the skinned surface (empty when it is off or there are none).
+  std::vector<SurfaceBoneCorrection> bone_corrections;
   // Per muscle, what the volume projection did to the skinned surface (empty when it is off or there are no surfaces).
   std::vector<SurfaceVolumeCorrection> volume_corrections;
   double volume_ms = 0;             // of skinning_ms, the volume projection's share
@@ -127,6 +133,7 @@ class DeformationPipeline {
   const FrameResult& lastFrame() const { return frame_; }
   const SurfaceSkinning* skinning() const { return skinning_.get(); }
   const SurfaceVolumeConstraint* surfaceVolume() const { return surface_volume_.get(); }
+  const SurfaceBoneContact* surfaceBoneContact() const { return surface_contact_.get(); }
   const DeformationMetrics* metrics() const { return metrics_.get(); }
   const std::string& skinningProblem() const { return skinning_problem_; }
   const std::string& metricsProblem() const { return metrics_problem_; }
@@ -152,6 +159,7 @@ class DeformationPipeline {
   std::unique_ptr<SurfaceSkinning> skinning_;
   std::unique_ptr<DeformationMetrics> metrics_;
   std::unique_ptr<SurfaceVolumeConstraint> surface_volume_;
+  std::unique_ptr<SurfaceBoneContact> surface_contact_;
   std::string skinning_problem_, metrics_problem_;
   double skinning_setup_ms_ = 0, metrics_setup_ms_ = 0;
   FrameResult frame_;
