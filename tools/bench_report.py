@@ -229,7 +229,7 @@ def bone_proxy_section(rows):
     first = rows[0]
     lines = ["## Bone proxies: the seeds' spheres against the bone itself (fidelity issue)", "",
              f"All {int(first['muscles'])} muscles ({int(first['particles'])} particles), node defaults "
-             f"({first['solver']}, threads {int(first['threads'])} = one or every core as measured), the gait streamed warm from rest "
+             f"({first['solver']}, threads {int(first['threads'])}: 0 = every core, -1 = one or every core as measured), the gait streamed warm from rest "
              "and one hard pose (hip flexion 110 deg, knee 130 deg) solved cold. Both proxies are judged by yardsticks "
              "neither defines: depths inside the real bone (its mesh through its distance field), and the skinned "
              "surfaces' volume error and vertices inside bone. \"Deeper than at rest\" is a free particle's depth in "

@@ -68,7 +68,7 @@ def realtime_section(rows, img_dir, img_link_prefix="img/"):
              "starting from the same converged frame 0 and judged against the converged stream, whose frame k "
              "continues its own frame k-1; *cold*: the five paper gait poses, each from its rigid pre-transform. "
              "Frame time = the solve (mass-spring system and collision), wall clock, on this 2-core shared machine; "
-             "`threads` 0 = one or every core, whichever sweeps faster as measured while it runs. *residual* is one "
+             "`threads` 0 = every core, -1 = one or every core, whichever sweeps faster as measured while it runs. *residual* is one "
              "yardstick for every solver: the RMS net force on the free particles (springs, the block-descent "
              "contact energy and the reference's tissue drag) over the springs' material constant (10 N), median "
              "over frames; configurations without drag solve another problem and are judged by this one. Raw "

@@ -135,7 +135,7 @@ TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
   local_global.stopping_rule = StoppingRule::force_residual;
   EXPECT_FALSE(validate(local_global).empty());
   BlockDescentSettings bad;
-  bad.threads = -1;
+  bad.threads = -2;  // -1 is the measured choice, 0 every core
   EXPECT_THROW(BlockDescentSolver(system, bad), std::invalid_argument);
 }
 
@@ -382,11 +382,11 @@ TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {
   EXPECT_TRUE((capped.position.array() == free_running.position.array()).all());  // bit for bit
 }
 
-TEST(BlockDescent, WithThreadsZeroOneThreadAndEveryCoreAreBothMeasuredAgainAndMoveNoParticle) {
+TEST(BlockDescent, WithMeasuredThreadsOneThreadAndEveryCoreAreBothMeasuredAgainAndMoveNoParticle) {
   const MassSpringSystem system = fixedChain(40);
   BlockDescentSettings settings = converging(1, 0);
   settings.stopping_rule = StoppingRule::iterations;  // one sweep per solve: a frame at the node's budget
-  settings.threads = 0;
+  settings.threads = BlockDescentSettings::kThreadsMeasured;
   BlockDescentSolver measured(system, settings);
   if (measured.threadCount() < 2) GTEST_SKIP() << "one core: nothing to choose";
   settings.threads = 1;

@@ -130,7 +130,8 @@ std::string validate(const BlockDescentSettings& settings) {
   if (!(settings.contact_margin_scale >= 0) || !std::isfinite(settings.contact_margin_scale))
     return "contact_margin_scale must be a non-negative number";
   if (settings.contact_newton_steps < 1) return "contact_newton_steps must be >= 1";
-  if (settings.threads < 0) return "threads must be >= 0 (0 = every core)";
+  if (settings.threads < BlockDescentSettings::kThreadsMeasured)
+    return "threads must be >= -1 (0 = every core, -1 = one or every core as measured)";
   if (!(settings.tissue_relaxation_s >= 0) || !std::isfinite(settings.tissue_relaxation_s))
     return "tissue_relaxation_s must be a finite number >= 0";
   if (!(settings.predict_extrapolation >= 0 && settings.predict_extrapolation <= kMaxPredictExtrapolation))
@@ -335,7 +336,9 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state, double margi
 }
 
 int BlockDescentSolver::sweepThreads() const {
-  const int threads = settings_.threads == 0 && thread_count_ > 1 ? measuredThreadChoice() : thread_count_;
+  const int threads =
+      settings_.threads == BlockDescentSettings::kThreadsMeasured && thread_count_ > 1 ? measuredThreadChoice()
+                                                                                         : thread_count_;
   if (settings_.limits.max_threads == nullptr) return threads;
   const int cap = settings_.limits.max_threads->load(std::memory_order_relaxed);
   return cap > 0 ? std::min(cap, threads) : threads;
@@ -351,7 +354,7 @@ int BlockDescentSolver::measuredThreadChoice() const {
 }
 
 void BlockDescentSolver::recordSweepTime(int threads, double milliseconds) {
-  if (settings_.threads != 0 || thread_count_ == 1) return;
+  if (settings_.threads != BlockDescentSettings::kThreadsMeasured || thread_count_ == 1) return;
   if (threads != 1 && threads != thread_count_) return;  // capped in between: neither estimate
   const bool probe = threads != (sweep_ms_[0] > 0 && sweep_ms_[0] < sweep_ms_[1] ? 1 : thread_count_);
   double& estimate = sweep_ms_[threads == 1 ? 0 : 1];

@@ -70,11 +70,15 @@ struct BlockDescentSettings {
   // sweep a frame: 0.54 instead of 0.73 mm RMS from the converged stream of all 26 muscles over a cycle, 0.92 instead
   // of 1.35 mm over three cycles of thigh13; 1 (straight linear extrapolation) fed its own error back and diverged.
   double predict_extrapolation = 0.5;
-  // Worker threads for the sweeps. Positions do not depend on it. 0 = every core while that is faster: the sweeps'
-  // wall times on one thread and on every core are measured as the solver runs (both are tried first, and the slower
-  // again every kThreadProbeInterval sweeps), and each sweep runs on the faster. Every core stops paying once another
-  // process holds one: a colour's threads then wait at its barrier for the descheduled one.
+  // Worker threads for the sweeps. Positions do not depend on it. 0 = every core. -1 = one thread or every core,
+  // whichever is faster as measured while the solver runs (both are tried first, and the slower again every
+  // kThreadProbeInterval sweeps): every core stops paying once another process holds one all the time, as a colour's
+  // threads then wait at its barrier for the descheduled one. Measured on 2 cores, all 26 bundled muscles, one sweep a
+  // frame: quiet, both 11.3-11.7 ms; beside rviz rendering in software (make demo) every core 16.2 ms against 18.8 ms
+  // measured (the estimate, one probe per 32 sweeps, follows rviz's bursts); beside a busy loop on one core 19.3
+  // against 17.7 ms. Viewing in rviz on the same machine is the product's common case, hence every core by default.
   int threads = 0;
+  static constexpr int kThreadsMeasured = -1;  // the `threads` value for the measured choice
 
   StoppingRule stopping_rule = StoppingRule::force_residual;
   int max_iterations = 100;                // sweeps, cap for every rule
