@@ -56,7 +56,7 @@ struct Tally {
   double rest_inside_depth_max = 0;          // first frame
   double offset_max_m = 0, offset_mean_sum_m = 0;
   int held_max = 0;
-  std::vector<double> skinning_ms, volume_ms, metrics_ms;
+  std::vector<double> skinning_ms, contact_ms, volume_ms, metrics_ms;
   int frames = 0;
 
   explicit Tally(std::size_t muscles)
@@ -76,10 +76,9 @@ struct SurfaceVariant {
 
 void measureFrame(SurfaceVariant& v, const MuscleSimulation& simulation, const BoneTransforms& transforms,
                   Tally& tally) {
-  tally.skinning_ms.push_back(bench::millisecondsOf([&] {
-    v.skinning->update(simulation.state().position, transforms, v.surfaces);
-    if (v.contact) v.contact->apply(v.surfaces, transforms);
-  }));
+  tally.skinning_ms.push_back(
+      bench::millisecondsOf([&] { v.skinning->update(simulation.state().position, transforms, v.surfaces); }));
+  if (v.contact) tally.contact_ms.push_back(bench::millisecondsOf([&] { v.contact->apply(v.surfaces, transforms); }));
   std::vector<SurfaceVolumeCorrection> corrections;
   if (v.volume)
     tally.volume_ms.push_back(bench::millisecondsOf([&] { corrections = v.volume->apply(v.surfaces, transforms); }));
@@ -138,8 +137,15 @@ int main(int argc, char** argv) {
       variants.push_back({toString(method) + (keep ? " + volume" : ""), skinning, keep, false, false});
     }
   }
-  // What the node runs: the skinning, the skin's contact with the bones, then the volume constraint.
-  variants.push_back({toString(node_skinning.method) + " + bone contact + volume", node_skinning, true, true, true});
+  // What the node runs: the skinning, the skin's contact with the bones, then the volume constraint; the other
+  // skinning methods the same way, so the choice of method is made on the whole chain.
+  for (const SkinningMethod method : {SkinningMethod::nearest_average, SkinningMethod::embedded,
+                                      SkinningMethod::mean_value}) {
+    SkinningSettings skinning = node_skinning;
+    skinning.method = method;
+    variants.push_back({toString(method) + " + bone contact + volume", skinning, true, true,
+                        method == node_skinning.method});
+  }
   std::vector<SurfaceVariant> surfaces;
   for (const Variant& variant : variants) {
     SurfaceVariant v;
@@ -222,6 +228,7 @@ int main(int argc, char** argv) {
       records.add("skinning", toString(surfaces[v].variant.skinning.method));
       records.add("keep_volume", surfaces[v].variant.keep_volume ? 1.0 : 0.0);
       records.add("keep_out_of_bones", surfaces[v].variant.keep_out_of_bones ? 1.0 : 0.0);
+      records.add("node_default", surfaces[v].variant.node_default ? 1.0 : 0.0);
       records.add("frames", static_cast<double>(t.frames));
       records.add("volume_error_mean_pct", mean);
       records.add("volume_error_max_pct", worst);
@@ -235,6 +242,7 @@ int main(int argc, char** argv) {
       records.add("vertices_held_max", t.held_max);
       records.add("skinning_ms_median", bench::median(t.skinning_ms));
       records.add("volume_ms_median", bench::median(t.volume_ms));
+      if (!t.contact_ms.empty()) records.add("contact_ms_median", bench::median(t.contact_ms));
       records.add("metrics_ms_median", bench::median(t.metrics_ms));
       records.end();
       std::printf("[%6.1f s] %-11s %-26s volume error mean %5.2f %%, max %6.2f %% (%s; skinned %6.2f %%), inside bone "

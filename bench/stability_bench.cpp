@@ -4,6 +4,7 @@
 //   stability_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
+#include "gait_stream.hpp"
 #include "node_defaults.hpp"
 
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
@@ -141,13 +142,29 @@ class Report {
 };
 
 // One pose solved on a fresh thigh13 simulation, starting as `start` after an optional rest frame.
+// How the posed frame starts after the rest frame: warm whatever the jump, or as the node's stream decides (cold at a
+// discontinuity: a bone faster than its limits between two frames 1/60 s apart).
+enum class After { cold, warm, stream };
+
 void poseCase(Report& report, const BundledScene& bundled, const std::string& name, const std::string& description,
-              const SimulationSettings& settings, const Pose& pose, bool warm_from_rest) {
+              const SimulationSettings& settings, const Pose& pose, After after,
+              const PoseStreamSettings& stream_settings = {}) {
   MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
   const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
-  if (warm_from_rest) simulation.solve(jointPose(bundled, 0, 0), StartMode::warm);
+  StartMode start = after == After::cold ? StartMode::cold : StartMode::warm;
+  if (after != After::cold) {
+    const BoneTransforms rest = boneTransformsOf(simulation.bones(), jointPose(bundled, 0, 0));
+    simulation.solve(rest, StartMode::warm);
+    if (after == After::stream) {
+      bench::GaitStream stream(simulation.bones(), stream_settings);
+      stream.solved(0, rest);
+      start = stream.start(1, boneTransformsOf(simulation.bones(), pose));
+      std::printf("[%6.1f s] %s: the stream starts the posed frame %s\n", report.elapsedSeconds(), name.c_str(),
+                  start == StartMode::cold ? "cold" : "warm");
+    }
+  }
   Outcome outcome;
-  accumulate(outcome, simulation, simulation.solve(pose, warm_from_rest ? StartMode::warm : StartMode::cold));
+  accumulate(outcome, simulation, simulation.solve(pose, start));
   report.add(name, description, outcome, bench::rmsMillimetres(simulation.state().position, pretransformOf(simulation, pose)),
              maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
 }
@@ -160,15 +177,19 @@ int main(int argc, char** argv) {
   Report report(records);
   constexpr double kDegree = 3.14159265358979323846 / 180.0;
 
-  const SimulationSettings settings = bench::loadNodeDefaults().simulation;  // config/muscle_deformation.yaml
+  const bench::NodeDefaults node = bench::loadNodeDefaults();  // config/muscle_deformation.yaml
+  const SimulationSettings settings = node.simulation;
   const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
   std::printf("[%6.1f s] loaded thigh13\n", report.elapsedSeconds());
   const Pose walking = jointPose(thigh, 0.5, 1.0);
 
-  poseCase(report, thigh, "pose_jump_90", "rest to hip flexion 90 deg in one warm frame", settings,
-           jointPose(thigh, 90 * kDegree, 0), true);
+  poseCase(report, thigh, "pose_jump_90", "rest to hip flexion 90 deg in one frame, forced warm", settings,
+           jointPose(thigh, 90 * kDegree, 0), After::warm);
+  poseCase(report, thigh, "pose_jump_90_stream",
+           "rest to hip flexion 90 deg one frame (1/60 s) later, started as the node's stream decides", settings,
+           jointPose(thigh, 90 * kDegree, 0), After::stream, node.stream);
   poseCase(report, thigh, "gait_extreme", "hip flexion 110 deg, knee flexion 130 deg, cold", settings,
-           jointPose(thigh, 110 * kDegree, 130 * kDegree), false);
+           jointPose(thigh, 110 * kDegree, 130 * kDegree), After::cold);
 
   double auto_step_s = 0;
   {
@@ -178,12 +199,12 @@ int main(int argc, char** argv) {
   SimulationSettings long_step = settings;
   long_step.verlet.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
   poseCase(report, thigh, "dt_x10", "dt 10 x the largest stable step, hip 0.5 rad knee 1.0 rad, cold", long_step,
-           walking, false);
+           walking, After::cold);
   SimulationSettings stiff = settings;
   stiff.model.spring_material_n *= 1000;
   stiff.verlet.dt_s = auto_step_s;
   poseCase(report, thigh, "stiffness_x1000", "springs 1000 x stiffer, the previous automatic step, cold", stiff, walking,
-           false);
+           After::cold);
 
   // Interpenetration: the segmented muscles overlap each other and the substituted hip bone at rest; the model must
   // keep the rest pose still and solve a pose without a blow-up.

@@ -390,12 +390,21 @@ def stability_section(rows):
                          f"{row['max_penetration_sphere_muscle_mm']:.2f} | "
                          f"{row.get('max_particle_inside_bone_mm', float('nan')):.2f}"
                          f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} |")
-        deep = [row["case"] for row in cases if row["max_penetration_sphere_bone_mm"] > radius]
+        deep = [row for row in cases if row["max_penetration_sphere_bone_mm"] > radius]
+        names = {row["case"] for row in cases}
+        notes = []
+        for row in deep:
+            note = (f"{row['case']} ({row['max_penetration_sphere_bone_mm']:.2f} mm, "
+                    f"{int(row['iterations'])} iteration{'s' if int(row['iterations']) != 1 else ''}"
+                    f"{', no recovery fired' if int(row['recoveries']) == 0 else ''})")
+            if row["case"] + "_stream" in names:
+                note += (f"; the node's stream never starts that jump warm: it sees a discontinuity and starts cold "
+                         f"({row['case']}_stream)")
+            notes.append(note)
         lines += ["", f"The median collision sphere radius is {radius:.2f} mm. "
                   + (f"Penetration deeper than that (a particle centre inside the bone proxy) remains in: "
-                     f"{', '.join(deep)}. No recovery fired there: it is unfinished convergence within the frame's "
-                     "iterations (particles squeezed between two bones), not divergence." if deep else
-                     "No case leaves a particle centre inside a bone proxy."), ""]
+                     + "; ".join(notes) + ". It is convergence unfinished within the frame's iterations, not "
+                     "divergence." if deep else "No case leaves a particle centre inside a bone proxy."), ""]
     for row in pbd:
         lines += ["### The 2019 PBD thesis scenario on our data", "",
                   f"{row.get('description', '')} ({int(row['particles'])} particles, {int(row['iterations'])} "
