@@ -201,3 +201,37 @@ TEST(DeformationPipeline, AFrameFromBoneTransformsIsTheFrameFromThePose) {
   const BoneTransforms too_few(1, Eigen::Isometry3d::Identity());
   EXPECT_THROW(from_transforms.solve(too_few, StartMode::cold, false, false), std::invalid_argument);
 }
+
+TEST(DeformationPipeline, SurfacesAndMetricsDoNotDependOnTheThreadCount) {
+  // The surface stages and metrics share the muscles out on the solver's threads; every figure must come out the same.
+  PipelineSettings settings = smallSettings();
+  settings.simulation.solver_kind = SolverKind::block_descent;
+  settings.simulation.stopping.rule = StoppingRule::iterations;
+  settings.simulation.stopping.max_iterations = 3;
+  settings.simulation.collision.bone_proxy = BoneProxyKind::distance_field;
+  shareStoppingRule(settings.simulation);
+  PipelineSettings two_threads = settings;
+  settings.simulation.block_descent.threads = 1;
+  two_threads.simulation.block_descent.threads = 2;
+  DeformationPipeline one = twoMusclePipeline(settings, makeSyntheticThigh(4, 4));
+  DeformationPipeline two = twoMusclePipeline(two_threads, makeSyntheticThigh(4, 4));
+  for (const double hip : {0.4, 0.9}) {
+    const Pose pose = syntheticThighPose(hip, 0.6);
+    const FrameResult& a = one.solve(pose, StartMode::warm, true, true);
+    const FrameResult& b = two.solve(pose, StartMode::warm, true, true);
+    ASSERT_TRUE(a.has_metrics && b.has_metrics);
+    ASSERT_EQ(a.volume_corrections.size(), 4u);
+    ASSERT_EQ(a.surfaces.size(), b.surfaces.size());
+    for (std::size_t m = 0; m < a.surfaces.size(); ++m) EXPECT_EQ(a.surfaces[m], b.surfaces[m]) << "muscle " << m;
+    EXPECT_EQ(a.metrics.volume_error_mean_pct, b.metrics.volume_error_mean_pct);
+    EXPECT_EQ(a.metrics.max_inside_bone_depth_m, b.metrics.max_inside_bone_depth_m);
+    EXPECT_EQ(a.metrics.vertices_inside_bone, b.metrics.vertices_inside_bone);
+    EXPECT_EQ(a.metrics.particles_inside_bone, b.metrics.particles_inside_bone);
+    EXPECT_EQ(a.metrics.max_particle_inside_bone_depth_m, b.metrics.max_particle_inside_bone_depth_m);
+    for (std::size_t m = 0; m < a.metrics.muscles.size(); ++m) {
+      EXPECT_EQ(a.metrics.muscles[m].volume_m3, b.metrics.muscles[m].volume_m3) << "muscle " << m;
+      EXPECT_EQ(a.metrics.muscles[m].deepest_bone, b.metrics.muscles[m].deepest_bone) << "muscle " << m;
+      EXPECT_EQ(a.bone_corrections[m].vertices_moved, b.bone_corrections[m].vertices_moved) << "muscle " << m;
+    }
+  }
+}

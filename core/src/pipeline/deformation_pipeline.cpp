@@ -1,5 +1,9 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
+#include <omp.h>
+
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <sstream>
 
@@ -100,11 +104,13 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   }
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
+    const int threads = surfaceThreads();
     skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
-    if (surface_contact_) frame_.bone_corrections = surface_contact_->apply(frame_.surfaces, frame_.bone_transforms);
+    if (surface_contact_)
+      frame_.bone_corrections = surface_contact_->apply(frame_.surfaces, frame_.bone_transforms, threads);
     if (surface_volume_) {
       const auto volume_start = std::chrono::steady_clock::now();
-      frame_.volume_corrections = surface_volume_->apply(frame_.surfaces, frame_.bone_transforms);
+      frame_.volume_corrections = surface_volume_->apply(frame_.surfaces, frame_.bone_transforms, threads);
       frame_.volume_ms = millisecondsSince(volume_start);
     }
     frame_.skinning_ms = millisecondsSince(skin_start);
@@ -112,11 +118,21 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   }
   if (metrics_ && want_metrics && frame_.has_surfaces) {
     const auto metrics_start = std::chrono::steady_clock::now();
-    frame_.metrics = metrics_->measure(frame_.surfaces, positions, frame_.bone_transforms);
+    frame_.metrics = metrics_->measure(frame_.surfaces, positions, frame_.bone_transforms, surfaceThreads());
     frame_.metrics_ms = millisecondsSince(metrics_start);
     frame_.has_metrics = true;
   }
   return frame_;
+}
+
+int DeformationPipeline::surfaceThreads() const {
+  const BlockDescentSettings& solver = simulation_->settings().block_descent;
+  int threads = solver.threads > 0 ? solver.threads : omp_get_num_procs();
+  if (solver.limits.max_threads != nullptr) {
+    const int cap = solver.limits.max_threads->load(std::memory_order_relaxed);
+    if (cap > 0) threads = std::min(threads, cap);
+  }
+  return threads;
 }
 
 AbsentMetric DeformationPipeline::residualAbsence() const {

@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <utility>
+#include <vector>
 
 namespace muscle_deformation {
 
@@ -291,31 +293,41 @@ class PosedBones {
 }  // namespace
 
 SceneMetrics DeformationMetrics::measureParticles(const Eigen::Matrix3Xd& particle_positions,
-                                                  const BoneTransforms& bone_transforms) const {
+                                                  const BoneTransforms& bone_transforms, int threads) const {
   if (particle_positions.cols() != particle_count_)
     throw MetricsError("metrics: " + std::to_string(particle_positions.cols()) + " particle positions, the system has " +
                        std::to_string(particle_count_));
   SceneMetrics scene;
   scene.muscles.resize(muscle_names_.size());
   for (std::size_t m = 0; m < muscle_names_.size(); ++m) scene.muscles[m].name = muscle_names_[m];
-  PosedBones bones(bone_fields_, bone_transforms);
-  // In runs of one muscle (a muscle's particles are consecutive); its tendon anchors, a run of -1 after them, are the
-  // bones' own points and skipped.
+  // Each muscle's particles in runs (a muscle's particles are consecutive); its tendon anchors, a run of -1 after
+  // them, are the bones' own points and skipped. Muscles apart on the threads: each writes its own figures and its own
+  // particles' entries of the read caches.
+  std::vector<std::vector<std::pair<Eigen::Index, Eigen::Index>>> runs(muscle_names_.size());
   for (Eigen::Index begin = 0; begin < particle_count_;) {
     const int muscle = particle_muscle_[static_cast<std::size_t>(begin)];
     Eigen::Index end = begin;
     while (end < particle_count_ && particle_muscle_[static_cast<std::size_t>(end)] == muscle) ++end;
-    if (muscle >= 0) {
-      bones.lookNear(particle_positions.middleCols(begin, end - begin));
+    if (muscle >= 0) runs[static_cast<std::size_t>(muscle)].emplace_back(begin, end);
+    begin = end;
+  }
+  const long muscle_count = static_cast<long>(runs.size());
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+    PosedBones bones(bone_fields_, bone_transforms);
+#pragma omp for schedule(dynamic, 1)
+    for (long muscle = 0; muscle < muscle_count; ++muscle) {
       MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
       int deepest_bone = -1;
-      for (Eigen::Index i = begin; i < end; ++i)
-        out.particles_inside_bone += bones.inside(particle_reads_, i, particle_positions.col(i),
-                                                  out.max_particle_inside_bone_depth_m, deepest_bone,
-                                                  particle_own_bone_[static_cast<std::size_t>(i)]);
+      for (const auto& [begin, end] : runs[static_cast<std::size_t>(muscle)]) {
+        bones.lookNear(particle_positions.middleCols(begin, end - begin));
+        for (Eigen::Index i = begin; i < end; ++i)
+          out.particles_inside_bone += bones.inside(particle_reads_, i, particle_positions.col(i),
+                                                    out.max_particle_inside_bone_depth_m, deepest_bone,
+                                                    particle_own_bone_[static_cast<std::size_t>(i)]);
+      }
       if (deepest_bone >= 0) out.deepest_particle_bone = bone_names_[static_cast<std::size_t>(deepest_bone)];
     }
-    begin = end;
   }
   for (const MuscleMetrics& out : scene.muscles) {
     scene.particles_inside_bone += out.particles_inside_bone;
@@ -326,30 +338,42 @@ SceneMetrics DeformationMetrics::measureParticles(const Eigen::Matrix3Xd& partic
 }
 
 SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
-                                         const BoneTransforms& bone_transforms) const {
+                                         const BoneTransforms& bone_transforms, int threads) const {
   const auto start = std::chrono::steady_clock::now();
   if (surfaces.size() != muscle_names_.size())
     throw MetricsError("metrics: " + std::to_string(surfaces.size()) + " deformed surfaces for " +
                        std::to_string(muscle_names_.size()) + " muscles");
-  SceneMetrics scene = measureParticles(particle_positions, bone_transforms);
-  PosedBones bones(bone_fields_, bone_transforms);
+  for (std::size_t m = 0; m < muscle_names_.size(); ++m)
+    if (surfaces[m].cols() <= muscle_triangles_[m].maxCoeff())
+      throw MetricsError("muscle '" + muscle_names_[m] + "': deformed surface has " +
+                         std::to_string(surfaces[m].cols()) + " vertices, fewer than its triangles refer to");
+  SceneMetrics scene = measureParticles(particle_positions, bone_transforms, threads);
+  // Muscles apart on the threads (each its own surface, reads and figures; bone probes are per thread); the scene's
+  // figures are summed afterwards in muscle order, so they do not depend on the thread count.
+  const long muscle_count = static_cast<long>(muscle_names_.size());
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+    PosedBones bones(bone_fields_, bone_transforms);
+#pragma omp for schedule(dynamic, 1)
+    for (long muscle = 0; muscle < muscle_count; ++muscle) {
+      const std::size_t m = static_cast<std::size_t>(muscle);
+      MuscleMetrics& out = scene.muscles[m];
+      const Vertices& surface = surfaces[m];
+      out.rest_volume_m3 = rest_volume_[m];
+      out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
+      out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
+      std::vector<FieldReadCache>& reads = vertex_reads_[m];
+      for (FieldReadCache& cache : reads)
+        if (cache.size() != surface.cols()) cache = FieldReadCache(surface.cols());  // another surface: nothing known
+      bones.lookNear(surface);
+      int deepest_bone = -1;
+      for (Eigen::Index v = 0; v < surface.cols(); ++v)
+        out.vertices_inside_bone += bones.inside(reads, v, surface.col(v), out.max_inside_bone_depth_m, deepest_bone);
+      if (deepest_bone >= 0) out.deepest_bone = bone_names_[static_cast<std::size_t>(deepest_bone)];
+    }
+  }
   for (std::size_t m = 0; m < muscle_names_.size(); ++m) {
-    MuscleMetrics& out = scene.muscles[m];
-    const Vertices& surface = surfaces[m];
-    if (surface.cols() <= muscle_triangles_[m].maxCoeff())
-      throw MetricsError("muscle '" + muscle_names_[m] + "': deformed surface has " + std::to_string(surface.cols()) +
-                         " vertices, fewer than its triangles refer to");
-    out.rest_volume_m3 = rest_volume_[m];
-    out.volume_m3 = volume_sign_[m] * enclosedVolume(surface, muscle_triangles_[m]);
-    out.volume_error_pct = (out.volume_m3 - out.rest_volume_m3) / out.rest_volume_m3 * 100;
-    std::vector<FieldReadCache>& reads = vertex_reads_[m];
-    for (FieldReadCache& cache : reads)
-      if (cache.size() != surface.cols()) cache = FieldReadCache(surface.cols());  // another surface: nothing known
-    bones.lookNear(surface);
-    int deepest_bone = -1;
-    for (Eigen::Index v = 0; v < surface.cols(); ++v)
-      out.vertices_inside_bone += bones.inside(reads, v, surface.col(v), out.max_inside_bone_depth_m, deepest_bone);
-    if (deepest_bone >= 0) out.deepest_bone = bone_names_[static_cast<std::size_t>(deepest_bone)];
+    const MuscleMetrics& out = scene.muscles[m];
     scene.vertices_inside_bone += out.vertices_inside_bone;
     scene.max_inside_bone_depth_m = std::max(scene.max_inside_bone_depth_m, out.max_inside_bone_depth_m);
     scene.volume_error_mean_pct += std::abs(out.volume_error_pct);

@@ -15,23 +15,30 @@ SurfaceBoneContact::SurfaceBoneContact(std::vector<Eigen::Index> vertex_counts, 
 }
 
 std::vector<SurfaceBoneCorrection> SurfaceBoneContact::apply(std::vector<Vertices>& surfaces,
-                                                             const BoneTransforms& bone_transforms) const {
+                                                             const BoneTransforms& bone_transforms,
+                                                             int threads) const {
   if (surfaces.size() != reads_.size())
     throw std::invalid_argument("surface bone contact: " + std::to_string(surfaces.size()) + " surfaces for " +
                                 std::to_string(reads_.size()) + " muscles");
   const std::size_t bone_count = bone_fields_.size();
   std::vector<Eigen::Isometry3d> to_pose(bone_count, Eigen::Isometry3d::Identity()), to_rest(bone_count);
   std::vector<AlignedBox> box(bone_count);
-  std::vector<BoneDistanceField::Probe> probes;
   for (std::size_t b = 0; b < bone_count; ++b) {
     if (b < bone_transforms.size()) to_pose[b] = bone_transforms[b];
     to_rest[b] = to_pose[b].inverse();
     box[b] = bone_fields_[b]->reachIn(to_pose[b]);
-    probes.push_back(bone_fields_[b]->probe());
   }
 
   std::vector<SurfaceBoneCorrection> corrections(surfaces.size());
-  for (std::size_t m = 0; m < surfaces.size(); ++m) {
+  const long muscle_count = static_cast<long>(surfaces.size());
+  // Muscles apart on the threads (each its own surface, reads and correction; probes are per thread).
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+  std::vector<BoneDistanceField::Probe> probes;
+  for (std::size_t b = 0; b < bone_count; ++b) probes.push_back(bone_fields_[b]->probe());
+#pragma omp for schedule(dynamic, 1)
+  for (long muscle = 0; muscle < muscle_count; ++muscle) {
+    const std::size_t m = static_cast<std::size_t>(muscle);
     Vertices& surface = surfaces[m];
     std::vector<FieldReadCache>& reads = reads_[m];
     for (FieldReadCache& cache : reads)
@@ -65,6 +72,7 @@ std::vector<SurfaceBoneCorrection> SurfaceBoneContact::apply(std::vector<Vertice
         correction.max_move_m = std::max(correction.max_move_m, (local - before).norm());
       }
     }
+  }
   }
   return corrections;
 }

@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
@@ -97,7 +98,8 @@ SurfaceVolumeConstraint::SurfaceVolumeConstraint(const std::vector<Triangles>& t
 }
 
 std::vector<SurfaceVolumeCorrection> SurfaceVolumeConstraint::apply(std::vector<Vertices>& surfaces,
-                                                                    const BoneTransforms& bone_transforms) const {
+                                                                    const BoneTransforms& bone_transforms,
+                                                                    int threads) const {
   if (surfaces.size() != triangles_.size())
     throw std::invalid_argument("surface volume: " + std::to_string(surfaces.size()) + " surfaces for " +
                                 std::to_string(triangles_.size()) + " muscles");
@@ -110,10 +112,12 @@ std::vector<SurfaceVolumeCorrection> SurfaceVolumeConstraint::apply(std::vector<
     bone_reach[b] = bone_fields_[b]->reachIn(pose);
   }
   std::vector<SurfaceVolumeCorrection> corrections(surfaces.size());
-  // One thread: a few milliseconds for the bundled scene, and a parallel loop beside a busy core took three times as long
-  // (its threads wait for the descheduled one).
-  for (std::size_t m = 0; m < surfaces.size(); ++m)
-    corrections[m] = project(static_cast<int>(m), surfaces[m], to_bone_rest, bone_reach);
+  // Muscles apart on the threads, largest share first by dynamic scheduling (each projects its own surface).
+  const long muscle_count = static_cast<long>(surfaces.size());
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(dynamic, 1)
+  for (long m = 0; m < muscle_count; ++m)
+    corrections[static_cast<std::size_t>(m)] =
+        project(static_cast<int>(m), surfaces[static_cast<std::size_t>(m)], to_bone_rest, bone_reach);
   return corrections;
 }
 

@@ -150,6 +150,9 @@ class DeformationPipeline {
 
  private:
   AbsentMetric residualAbsence() const;
+  // Threads of the surface stages and metrics: the block-descent solver's `threads` (0 and -1: every core), within the
+  // solve limits' thread cap. They run after the solve, so they have the cores the sweeps had.
+  int surfaceThreads() const;
   AbsentMetric collisionAbsence() const;
   AbsentMetric metricsAbsence() const;
 

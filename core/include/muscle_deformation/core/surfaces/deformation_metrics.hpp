@@ -100,13 +100,15 @@ class DeformationMetrics {
   // Per solve: surfaces[m] are muscle m's deformed surface vertices (e.g. from SurfaceSkinning::update), positions
   // the particles, transforms the bones' pose (indexed by Bone::id; missing bones stay at rest). Remembers what it
   // read of the bone fields, so that the next frame reads only points that may have come close to a bone (exact for
-  // any motion); one instance measures one frame at a time.
+  // any motion); one instance measures one frame at a time. `threads` share the muscles' surfaces out; the figures do
+  // not depend on it.
   SceneMetrics measure(const std::vector<Vertices>& surfaces, const Eigen::Matrix3Xd& particle_positions,
-                       const BoneTransforms& bone_transforms) const;
+                       const BoneTransforms& bone_transforms, int threads = 1) const;
 
   // The particles' part of measure() alone (no surfaces needed): per muscle, its particles inside a bone and the
   // deepest (MuscleMetrics::particles_inside_bone); the other figures stay 0. Shares measure()'s memory of reads.
-  SceneMetrics measureParticles(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms) const;
+  SceneMetrics measureParticles(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
+                                int threads = 1) const;
 
   // Pieces, usable alone.
   // Rest volume of muscle m (positive whatever its winding).

@@ -38,8 +38,9 @@ class SurfaceBoneContact {
   // Moves every vertex of surfaces[m] that lies inside a bone placed by `bone_transforms` (indexed like the fields;
   // missing ones stay at rest) out to kClearanceM outside it. Returns one correction per muscle. Remembers what it
   // read of the fields (FieldReadCache), so a frame reads only vertices that may have come close to a bone; one
-  // instance serves one frame at a time.
-  std::vector<SurfaceBoneCorrection> apply(std::vector<Vertices>& surfaces, const BoneTransforms& bone_transforms) const;
+  // instance serves one frame at a time. `threads` share the muscles out; the result does not depend on it.
+  std::vector<SurfaceBoneCorrection> apply(std::vector<Vertices>& surfaces, const BoneTransforms& bone_transforms,
+                                           int threads = 1) const;
 
  private:
   BoneFields bone_fields_;

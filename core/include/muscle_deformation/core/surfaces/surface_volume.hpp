@@ -46,9 +46,10 @@ class SurfaceVolumeConstraint {
                           BoneFields bone_fields, SurfaceVolumeSettings settings);
 
   // Projects surfaces[m] of every muscle to its rest volume. `bone_transforms` place the bones (indexed like the
-  // fields; missing ones stay at rest). Returns one correction per muscle.
-  std::vector<SurfaceVolumeCorrection> apply(std::vector<Vertices>& surfaces,
-                                             const BoneTransforms& bone_transforms) const;
+  // fields; missing ones stay at rest). Returns one correction per muscle. `threads` share the muscles out; the result
+  // does not depend on it.
+  std::vector<SurfaceVolumeCorrection> apply(std::vector<Vertices>& surfaces, const BoneTransforms& bone_transforms,
+                                             int threads = 1) const;
 
   double restVolume(int muscle) const { return rest_volume_[static_cast<std::size_t>(muscle)]; }
   const SurfaceVolumeSettings& settings() const { return settings_; }
