@@ -80,7 +80,7 @@ std::vector<SettingSpec> buildTable() {
               [local_global](CoreSettings& s) -> int& { return local_global(s).lbfgs_history; }),
       integer("threads", "count", -1, 1024,
               "block_descent: worker threads of a solve (0 = every core; -1 = one or every core, whichever sweeps "
-              "faster as measured while it runs)",
+              "faster as measured while it runs); the surface stages and metrics after it use as many (-1: every core)",
               [block_descent](CoreSettings& s) -> int& { return block_descent(s).threads; }),
       number("residual_tolerance", "", 0.0, 1e6,
              "force_residual rule: stop when the RMS net force on the free particles falls below this times the "
