@@ -27,6 +27,7 @@
 #include <cstdio>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -74,17 +75,19 @@ struct SurfaceVariant {
   std::vector<Vertices> surfaces;
 };
 
-void measureFrame(SurfaceVariant& v, const MuscleSimulation& simulation, const BoneTransforms& transforms,
+void measureFrame(SurfaceVariant& v, const MuscleSimulation& simulation, const BoneTransforms& transforms, int threads,
                   Tally& tally) {
   tally.skinning_ms.push_back(
       bench::millisecondsOf([&] { v.skinning->update(simulation.state().position, transforms, v.surfaces); }));
-  if (v.contact) tally.contact_ms.push_back(bench::millisecondsOf([&] { v.contact->apply(v.surfaces, transforms); }));
+  if (v.contact)
+    tally.contact_ms.push_back(bench::millisecondsOf([&] { v.contact->apply(v.surfaces, transforms, threads); }));
   std::vector<SurfaceVolumeCorrection> corrections;
   if (v.volume)
-    tally.volume_ms.push_back(bench::millisecondsOf([&] { corrections = v.volume->apply(v.surfaces, transforms); }));
+    tally.volume_ms.push_back(
+        bench::millisecondsOf([&] { corrections = v.volume->apply(v.surfaces, transforms, threads); }));
   SceneMetrics measured;
   tally.metrics_ms.push_back(
-      bench::millisecondsOf([&] { measured = v.metrics->measure(v.surfaces, simulation.state().position, transforms); }));
+      bench::millisecondsOf([&] { measured = v.metrics->measure(v.surfaces, simulation.state().position, transforms, threads); }));
   double offset_sum = 0;
   for (std::size_t m = 0; m < measured.muscles.size(); ++m) {
     const MuscleMetrics& mm = measured.muscles[m];
@@ -127,6 +130,11 @@ int main(int argc, char** argv) {
   std::printf("[%6.1f s] %zu muscles, %ld particles\n", elapsedSeconds(), muscle_count,
               static_cast<long>(system.particleCount()));
 
+  // The surface stages and metrics run on the node's threads (every core by default), as in its pipeline.
+  const int surface_threads =
+      node.simulation.block_descent.threads > 0 ? node.simulation.block_descent.threads
+                                            : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  std::printf("[%6.1f s] surface stages and metrics on %d threads\n", elapsedSeconds(), surface_threads);
   const SkinningSettings node_skinning;  // the node's skinning defaults are the core's (config/muscle_deformation.yaml)
   std::vector<Variant> variants;
   for (const bool keep : {false, true}) {
@@ -206,7 +214,8 @@ int main(int argc, char** argv) {
     simulation.reset();
     for (std::size_t f = 0; f < c.frames.size(); ++f) {
       simulation.solve(c.frames[f], f == 0 ? StartMode::cold : StartMode::warm);
-      for (std::size_t v = 0; v < surfaces.size(); ++v) measureFrame(surfaces[v], simulation, c.frames[f], tallies[v]);
+      for (std::size_t v = 0; v < surfaces.size(); ++v)
+        measureFrame(surfaces[v], simulation, c.frames[f], surface_threads, tallies[v]);
     }
     for (std::size_t v = 0; v < surfaces.size(); ++v) {
       const Tally& t = tallies[v];
@@ -230,6 +239,7 @@ int main(int argc, char** argv) {
       records.add("keep_out_of_bones", surfaces[v].variant.keep_out_of_bones ? 1.0 : 0.0);
       records.add("node_default", surfaces[v].variant.node_default ? 1.0 : 0.0);
       records.add("frames", static_cast<double>(t.frames));
+      records.add("threads", static_cast<double>(surface_threads));
       records.add("volume_error_mean_pct", mean);
       records.add("volume_error_max_pct", worst);
       records.add("volume_error_max_muscle", system.muscle_name[worst_muscle]);

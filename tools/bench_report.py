@@ -269,7 +269,11 @@ def fidelity_section(rows):
              "Depths inside bone are read from the bones' distance fields (1 mm voxels); *offsets* are how far the "
              "volume constraint moved the surface vertices; *bone contact* moves the skinned vertices inside a bone out to "
              "it before the volume constraint. The node's surfaces are the row marked (node). The first frame of "
-             "*hip_flexion* is the rest pose; of *gait*, the gait's first pose. Raw numbers: `out/bench/fidelity.json`.",
+             "*hip_flexion* is the rest pose; of *gait*, the gait's first pose. "
+             + (f"The bone contact, the volume constraint and the metrics run on {int(variants[0]['threads'])} "
+                "threads (the node's `threads`; the muscles shared out), the skinning on one. "
+                if variants and "threads" in variants[0] else "")
+             + "Raw numbers: `out/bench/fidelity.json`.",
              "",
              "| case | surface | volume error mean % | worst % (muscle) | skinned worst % | surface inside bone max mm "
              "(first frame) | particles inside bone max mm | offsets mean / max mm | vertices held by a bone | "
