@@ -4,6 +4,7 @@
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
@@ -745,6 +746,34 @@ TEST(CollisionWorldWithBoneFields, ResolvePutsAParticleItsRadiusOutsideTheBoneAn
   const Eigen::Vector3d bone_centre(0.015, 0, 0);
   EXPECT_NEAR((state.position.col(0) - bone_centre).norm(), 0.025 + 0.002, 3e-4);
   EXPECT_NEAR((state.position.col(1) - bone_centre).norm(), 0.025, 3e-4);
+  EXPECT_LT(world.measure(state).max_penetration_muscle_bone_m, 3e-4);
+}
+
+TEST(CollisionWorldWithBoneFields, ParticlesABoxBoneMovesIntoArePushedOutThroughTheFaceTheyAreNearest) {
+  // A 40 mm box bone; three particles of 1.5 mm radius 5 mm outside three of its faces at rest. The bone then moves
+  // 8 mm diagonally, which takes each particle about 3 mm inside its face: each must come out through that face to its
+  // radius outside, not through another face (the field's gradient points to the nearest face).
+  md::TriangleMesh box = md::testing::unitCube();
+  box.vertices *= 0.04;
+  const auto field = std::make_shared<const md::BoneDistanceField>(box);
+  const double radius = 0.0015;
+  md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.045, 0.02, 0.02), radius},
+                                            {0, Eigen::Vector3d(0.02, 0.045, 0.02), radius},
+                                            {0, Eigen::Vector3d(0.02, 0.02, 0.045), radius}}, 1);
+  md::CollisionWorld world(system, {field}, {}, {"box"});
+  auto state = md::restState(system);
+  EXPECT_EQ(world.measure(state).muscle_bone_contacts, 0) << "no contact at rest";
+  const Eigen::Vector3d shift(0.008, 0.008, 0.008);
+  world.setBoneTransforms({Eigen::Isometry3d(Eigen::Translation3d(shift))});
+  EXPECT_EQ(world.measure(state).muscle_bone_contacts, 3);
+  EXPECT_EQ(world.resolve(state), 3);
+  const double far_face = 0.04 + 0.008;  // each particle's nearest face, moved with the bone
+  for (int axis = 0; axis < 3; ++axis) {
+    const Eigen::Vector3d p = state.position.col(axis);
+    EXPECT_NEAR(p[axis], far_face + radius, 3e-4) << "particle " << axis << " out through its own face";
+    for (int other = 0; other < 3; ++other)
+      if (other != axis) EXPECT_NEAR(p[other], 0.02, 1e-3) << "particle " << axis << " moved along the face normal";
+  }
   EXPECT_LT(world.measure(state).max_penetration_muscle_bone_m, 3e-4);
 }
 
