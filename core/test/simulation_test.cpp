@@ -1,10 +1,19 @@
 // The whole core pipeline: model, collision and solver behind MuscleSimulation.
 #include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <vector>
+
 using namespace muscle_deformation;
+
+#ifndef MD_PACKAGE_DIR
+#define MD_PACKAGE_DIR "."
+#endif
 
 namespace {
 
@@ -97,4 +106,46 @@ TEST(Simulation, ANonFinitePoseIsRejected) {
   broken.translation().x() = std::nan("");
   pose.bone_transforms["rod"] = broken;
   EXPECT_THROW(simulation.solve(pose, StartMode::cold), std::invalid_argument);
+}
+
+TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSweepsPastTheBudget) {
+  // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget): a warm jump from rest to 90 deg
+  // hip flexion leaves particle centres in the pelvis after that sweep; a small step leaves none.
+  const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  SimulationSettings settings = nodeDefaultSettings().pipeline.simulation;
+  settings.stopping.time_budget_ms = 0;
+  shareStoppingRule(settings);
+  const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
+  struct Frames {
+    FrameStats small_step, jump;
+    double median_radius_m = 0;
+  };
+  const auto run = [&](int deep_contact_sweeps) {
+    SimulationSettings chosen = settings;
+    chosen.block_descent.deep_contact_sweeps = deep_contact_sweeps;
+    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, chosen);
+    std::vector<double> radii;
+    for (Eigen::Index i = 0; i < simulation.system().radius.size(); ++i)
+      if (simulation.system().radius[i] > 0) radii.push_back(simulation.system().radius[i]);
+    std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2), radii.end());
+    Frames frames;
+    frames.median_radius_m = radii[radii.size() / 2];
+    simulation.solve(hipFlexion(0), StartMode::cold);
+    frames.small_step = simulation.solve(hipFlexion(0.01), StartMode::warm);
+    frames.jump = simulation.solve(hipFlexion(1.5707963267948966), StartMode::warm);
+    return frames;
+  };
+  const Frames budget_only = run(0);
+  const Frames guarded = run(2);
+  ASSERT_GT(budget_only.jump.collision.max_penetration_muscle_bone_m, budget_only.median_radius_m);
+  EXPECT_EQ(budget_only.jump.solver.iterations, 1);
+  ASSERT_LT(budget_only.small_step.collision.max_penetration_muscle_bone_m, budget_only.median_radius_m);
+  EXPECT_EQ(guarded.small_step.solver.iterations, 1) << "a smooth step keeps its budget";
+  EXPECT_EQ(guarded.small_step.collision.max_penetration_muscle_bone_m,
+            budget_only.small_step.collision.max_penetration_muscle_bone_m);
+  // The jump gets more sweeps, never more than allowed, and stops once no centre is left in the bone.
+  EXPECT_GT(guarded.jump.solver.iterations, 1);
+  EXPECT_LE(guarded.jump.solver.iterations, 1 + 2);
+  EXPECT_LE(guarded.jump.collision.max_penetration_muscle_bone_m, guarded.median_radius_m);
+  EXPECT_TRUE(guarded.jump.finite);
 }

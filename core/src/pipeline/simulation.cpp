@@ -1,9 +1,44 @@
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 
 #include <algorithm>
+#include <limits>
 #include <stdexcept>
+#include <vector>
 
 namespace muscle_deformation {
+
+namespace {
+
+// Adds one sweep solved past the frame's budget to the frame's statistics: its cost and the state it ended in.
+void addDeepContactSweep(const SolveStats& sweep, SolveStats& frame) {
+  frame.iterations += sweep.iterations;
+  frame.mss_ms += sweep.mss_ms;
+  frame.collision_ms += sweep.collision_ms;
+  frame.total_ms += sweep.total_ms;
+  frame.mean_displacement_m = sweep.mean_displacement_m;
+  frame.peak_mean_displacement_m = std::max(frame.peak_mean_displacement_m, sweep.peak_mean_displacement_m);
+  frame.spring_deviation_ratio = sweep.spring_deviation_ratio;
+  frame.mean_strain = sweep.mean_strain;
+  frame.max_strain = sweep.max_strain;
+  frame.strain_p99 = sweep.strain_p99;
+  frame.residual = sweep.residual;
+  frame.contacts = sweep.contacts;
+  frame.divergence_recoveries += sweep.divergence_recoveries;
+  frame.diverged = sweep.diverged;
+  frame.cancelled = sweep.cancelled;
+  frame.time_limit_reached = frame.time_limit_reached || sweep.time_limit_reached;
+}
+
+double medianCollisionRadius(const MassSpringSystem& system) {
+  std::vector<double> radii;
+  for (Eigen::Index i = 0; i < system.radius.size(); ++i)
+    if (system.radius[i] > 0) radii.push_back(system.radius[i]);
+  if (radii.empty()) return std::numeric_limits<double>::infinity();
+  std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2), radii.end());
+  return radii[radii.size() / 2];
+}
+
+}  // namespace
 
 void shareStoppingRule(SimulationSettings& simulation) {
   const StoppingSettings& shared = simulation.stopping;
@@ -55,6 +90,7 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
         },
         collision_->everyParticleCollides());
   state_ = restState(system_);
+  median_collision_radius_m_ = medianCollisionRadius(system_);
 }
 
 void MuscleSimulation::reset() { has_previous_ = false; }
@@ -158,6 +194,22 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     collision_->resetTiming();
     stats.solver = solver_->solve(state_);
     stats.collision = collision_->measure(state_);
+    // A warm frame under a time budget whose sweeps left a particle's centre in a bone (a jump, not a smooth stream)
+    // gets up to deep_contact_sweeps more, one at a time, each from where the last ended, towards the same answer.
+    const bool deep_contact_guard = stats.warm_started && stop.rule == StoppingRule::time_budget &&
+                                    settings_.solver_kind == SolverKind::block_descent;
+    for (int extra = 0; deep_contact_guard && extra < settings_.block_descent.deep_contact_sweeps &&
+                        stats.collision.max_penetration_muscle_bone_m > median_collision_radius_m_ &&
+                        !stats.solver.diverged && !stats.solver.cancelled && !stats.solver.time_limit_reached;
+         ++extra) {
+      solver_->setStopping(StoppingRule::iterations, 1, stop.displacement_tolerance_m, stop.time_budget_ms,
+                           stop.limits);
+      const SolveStats more = solver_->solve(state_);
+      solver_->setStopping(stop.rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
+                           stop.limits);
+      addDeepContactSweep(more, stats.solver);
+      stats.collision = collision_->measure(state_);
+    }
   } else if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();

@@ -130,6 +130,7 @@ std::string validate(const BlockDescentSettings& settings) {
   if (!(settings.contact_margin_scale >= 0) || !std::isfinite(settings.contact_margin_scale))
     return "contact_margin_scale must be a non-negative number";
   if (settings.contact_newton_steps < 1) return "contact_newton_steps must be >= 1";
+  if (settings.deep_contact_sweeps < 0) return "deep_contact_sweeps must be >= 0";
   if (settings.threads < BlockDescentSettings::kThreadsMeasured)
     return "threads must be >= -1 (0 = every core, -1 = one or every core as measured)";
   if (!(settings.tissue_relaxation_s >= 0) || !std::isfinite(settings.tissue_relaxation_s))
