@@ -16,10 +16,8 @@ Run after build_scene.py:  PYENV_VERSION=system /usr/bin/python3 tools/scene/rep
 import json
 import os
 import sys
-import xml.etree.ElementTree as ET
 
 import numpy as np
-import vtk
 import yaml
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -27,54 +25,6 @@ import overlaps  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 PKG = sl.PKG
-
-
-def bone_meshes_scene():
-    """Every <collision> mesh of the URDF, moved to the scene frame of the zero
-    configuration (all link frames are parallel to world at zero, so a link's
-    pose is the sum of the joint origins on its chain)."""
-    root = ET.parse(os.path.join(PKG, "urdf", "right_hip_thigh.urdf")).getroot()
-    parent = {}
-    for j in root.findall("joint"):
-        xyz = np.array([float(v) for v in j.find("origin").get("xyz").split()])
-        if j.find("origin").get("rpy").split() != ["0", "0", "0"]:
-            raise ValueError("report assumes joint origins without rotation")
-        parent[j.find("child").get("link")] = (j.find("parent").get("link"), xyz)
-
-    def pos(link):
-        p = np.zeros(3)
-        while link in parent:
-            link, xyz = parent[link]
-            p += xyz
-        return p
-    out = {}
-    for link in root.findall("link"):
-        for c in link.findall("collision"):
-            fn = c.find("geometry/mesh").get("filename").replace("package://muscle_deformation/", "")
-            pd = sl.read_stl(os.path.join(PKG, fn))
-            o = pos(link.get("name"))
-            out[os.path.basename(fn)[:-4]] = (link.get("name"), sl.transform_pd(pd, lambda P, o=o: P + o))
-    return out
-
-
-def inside_flags(bone_pd, P):
-    pts = vtk.vtkPoints()
-    for p in P:
-        pts.InsertNextPoint(*p)
-    probe = vtk.vtkPolyData()
-    probe.SetPoints(pts)
-    sel = vtk.vtkSelectEnclosedPoints()
-    sel.SetInputData(probe)
-    sel.SetSurfaceData(bone_pd)
-    sel.SetTolerance(1e-6)
-    sel.Update()
-    return np.array([sel.IsInside(i) for i in range(len(P))], dtype=bool)
-
-
-def depths(bone_pd, P):
-    f = vtk.vtkImplicitPolyDataDistance()
-    f.SetInput(bone_pd)
-    return np.array([abs(f.EvaluateFunction(*p)) for p in P])
 
 
 def muscle_penetration(muscle_pd, bones):
@@ -88,9 +38,9 @@ def muscle_penetration(muscle_pd, bones):
         if not near.any():
             continue
         flags = np.zeros(len(P), bool)
-        flags[near] = inside_flags(bpd, P[near])
+        flags[near] = overlaps.inside_flags(bpd, P[near])
         if flags.any():
-            d = depths(bpd, P[flags]).max()
+            d = overlaps.unsigned_distance(bpd, P[flags]).max()
             per_bone[b] = (int(flags.sum()), d)
             if d > worst[0]:
                 worst = (d, b)
@@ -101,7 +51,7 @@ def muscle_penetration(muscle_pd, bones):
 def main():
     scene = yaml.safe_load(open(os.path.join(PKG, "config", "scenes", "right_hip_thigh.yaml")))
     params = json.load(open(os.path.join(PKG, "tools", "scene", "build_params.json")))
-    bones = bone_meshes_scene()
+    bones = overlaps.bone_meshes_scene()
     rows = []
     results = {}
     for m in scene["muscles"]:
