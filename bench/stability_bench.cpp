@@ -37,16 +37,6 @@ Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& 
   return state.position;
 }
 
-// The scale the penetrations are judged by: deeper than a sphere radius puts a particle's centre inside the bone.
-double medianSphereRadius(const MassSpringSystem& system) {
-  std::vector<double> radii;
-  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
-    if (system.radius[i] > 0) radii.push_back(system.radius[i]);
-  if (radii.empty()) return 0;
-  std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
-  return radii[radii.size() / 2];
-}
-
 bool statsFinite(const FrameStats& stats) {
   const SolveStats& s = stats.solver;
   const CollisionStats& c = stats.collision;
@@ -110,7 +100,7 @@ class Report {
     records_.add("case", name);
     records_.add("description", description);
     records_.add("particles", static_cast<double>(system.particleCount()));
-    records_.add("median_sphere_radius_mm", medianSphereRadius(system) * 1e3);
+    records_.add("median_sphere_radius_mm", system.medianCollisionRadius() * 1e3);
     records_.add("recoveries", outcome.recoveries);
     records_.add("diverged", outcome.diverged ? 1.0 : 0.0);
     records_.add("finite", outcome.finite ? 1.0 : 0.0);
@@ -267,7 +257,7 @@ int main(int argc, char** argv) {
     records.add("frames", frames);
     records.add("particles", static_cast<double>(system.particleCount()));
     records.add("gluteus_particles", static_cast<double>(count));
-    records.add("median_sphere_radius_mm", medianSphereRadius(system) * 1e3);
+    records.add("median_sphere_radius_mm", system.medianCollisionRadius() * 1e3);
     records.add("gluteus_end_rms_to_start_mm", end_rms_mm);
     records.add("gluteus_peak_rms_to_start_mm", peak_rms_mm);
     records.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);

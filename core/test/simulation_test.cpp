@@ -6,7 +6,6 @@
 
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -124,12 +123,8 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
     SimulationSettings chosen = settings;
     chosen.block_descent.deep_contact_sweeps = deep_contact_sweeps;
     MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, chosen);
-    std::vector<double> radii;
-    for (Eigen::Index i = 0; i < simulation.system().radius.size(); ++i)
-      if (simulation.system().radius[i] > 0) radii.push_back(simulation.system().radius[i]);
-    std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2), radii.end());
     Frames frames;
-    frames.median_radius_m = radii[radii.size() / 2];
+    frames.median_radius_m = simulation.system().medianCollisionRadius();
     simulation.solve(hipFlexion(0), StartMode::cold);
     frames.small_step = simulation.solve(hipFlexion(0.01), StartMode::warm);
     frames.jump = simulation.solve(hipFlexion(1.5707963267948966), StartMode::warm);

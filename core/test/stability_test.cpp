@@ -88,15 +88,6 @@ Eigen::Matrix3Xd convergedShape(const std::vector<Muscle>& muscles, const std::v
   return reference.state().position;
 }
 
-double medianSphereRadius(const MassSpringSystem& system) {
-  std::vector<double> radii;
-  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
-    if (system.radius[i] > 0) radii.push_back(system.radius[i]);
-  if (radii.empty()) return 0;
-  std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
-  return radii[radii.size() / 2];
-}
-
 // The largest step the automatic rule considers stable for this model (it takes 0.9 of it).
 double largestStableStep(const MassSpringSystem& system) { return VerletSolver(system, VerletSettings{}).timeStep() / 0.9; }
 
@@ -110,13 +101,13 @@ void expectBoundedWithoutDivergence(const MuscleSimulation& simulation, const Fr
   const double start_error_m = rmsDistance(pretransform, converged);
   EXPECT_LE(error_m, start_error_m) << "RMS to the converged shape " << error_m * 1e3 << " mm, the pre-transform "
                                     << start_error_m * 1e3 << " mm";
-  EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, medianSphereRadius(simulation.system()));
+  EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, simulation.system().medianCollisionRadius());
   // The margin of the divergence check: its size bound is a quarter of the mean rest spring length.
   const double mean_rest_m = simulation.system().springs.rest_length.mean();
   std::printf("RMS to converged %.2f mm (pre-transform %.2f mm), bone penetration %.2f mm (bound %.2f mm), peak mean "
               "step %.3f of the divergence size bound\n",
               error_m * 1e3, start_error_m * 1e3, stats.collision.max_penetration_muscle_bone_m * 1e3,
-              medianSphereRadius(simulation.system()) * 1e3,
+              simulation.system().medianCollisionRadius() * 1e3,
               stats.solver.peak_mean_displacement_m / (DivergenceMonitor::kStepFraction * mean_rest_m));
 }
 
@@ -242,7 +233,7 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   const Eigen::Matrix3Xd converged = convergedShape(scene.muscles, scene.bones, smallSettings(), pose);
   EXPECT_LE(rmsDistance(simulation.state().position, converged),
             rmsDistance(pretransformOf(simulation, pose), converged));
-  EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, medianSphereRadius(simulation.system()));
+  EXPECT_LE(stats.collision.max_penetration_muscle_bone_m, simulation.system().medianCollisionRadius());
   std::printf("%d recoveries, step now %.4f x the previous one, RMS to converged %.2f mm (pre-transform %.2f mm), "
               "bone penetration %.2f mm\n",
               stats.solver.divergence_recoveries, stats.solver.time_step_s / previous_step_s,
@@ -324,7 +315,7 @@ TEST(Stability, TwoMusclesStartingInterpenetratedByFiveMillimetres) {
   // Every iteration ends with a collision pass, so what overlap remains is what the last spring update pushed back
   // in: less than the overlap the solve started from, and less than one sphere radius.
   EXPECT_LT(stats.collision.max_penetration_muscle_muscle_m, start_overlap_m);
-  EXPECT_LE(stats.collision.max_penetration_muscle_muscle_m, medianSphereRadius(simulation.system()));
+  EXPECT_LE(stats.collision.max_penetration_muscle_muscle_m, simulation.system().medianCollisionRadius());
   std::printf("sphere gap at surface contact %.2f mm, start overlap %.2f mm, after %.3f mm\n", sphere_gap_m * 1e3,
               start_overlap_m * 1e3, stats.collision.max_penetration_muscle_muscle_m * 1e3);
 }
@@ -337,7 +328,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
                              {1, "top", makeBoxMesh({-0.04, -0.04, 0.201}, {0.04, 0.04, 0.22}, 0.005)},
                              {2, "rod", makeCylinderMesh({-0.3, -0.06, 0.1}, {-0.3, 0.06, 0.1}, 0.004, 12, 30)}};
   MuscleSimulation simulation(muscles, bones, smallSettings());
-  const double radius_m = medianSphereRadius(simulation.system());
+  const double radius_m = simulation.system().medianCollisionRadius();
   ASSERT_GT(radius_m, 0);
   const double step_m = 1.5 * radius_m;
   simulation.solve(Pose{}, StartMode::warm);

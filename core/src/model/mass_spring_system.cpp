@@ -1,5 +1,8 @@
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 
+#include <algorithm>
+#include <vector>
+
 namespace muscle_deformation {
 
 std::size_t MassSpringSystem::modelBytes() const {
@@ -8,6 +11,16 @@ std::size_t MassSpringSystem::modelBytes() const {
                                    4 * sizeof(std::int32_t) + kBlendBones * (sizeof(std::int32_t) + sizeof(double));
   const std::size_t per_spring = 2 * sizeof(std::int32_t) + 2 * sizeof(double);
   return per_particle * particles + per_spring * springs.size();
+}
+
+double MassSpringSystem::medianCollisionRadius() const {
+  std::vector<double> radii;
+  for (Eigen::Index i = 0; i < radius.size(); ++i)
+    if (radius[i] > 0) radii.push_back(radius[i]);
+  if (radii.empty()) return 0;
+  const auto middle = radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2);
+  std::nth_element(radii.begin(), middle, radii.end());
+  return *middle;
 }
 
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {

@@ -1,7 +1,6 @@
 #include "muscle_deformation/core/pipeline/simulation.hpp"
 
 #include <algorithm>
-#include <limits>
 #include <stdexcept>
 #include <vector>
 
@@ -27,15 +26,6 @@ void addDeepContactSweep(const SolveStats& sweep, SolveStats& frame) {
   frame.diverged = sweep.diverged;
   frame.cancelled = sweep.cancelled;
   frame.time_limit_reached = frame.time_limit_reached || sweep.time_limit_reached;
-}
-
-double medianCollisionRadius(const MassSpringSystem& system) {
-  std::vector<double> radii;
-  for (Eigen::Index i = 0; i < system.radius.size(); ++i)
-    if (system.radius[i] > 0) radii.push_back(system.radius[i]);
-  if (radii.empty()) return std::numeric_limits<double>::infinity();
-  std::nth_element(radii.begin(), radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2), radii.end());
-  return radii[radii.size() / 2];
 }
 
 }  // namespace
@@ -90,7 +80,7 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
         },
         collision_->everyParticleCollides());
   state_ = restState(system_);
-  median_collision_radius_m_ = medianCollisionRadius(system_);
+  median_collision_radius_m_ = system_.medianCollisionRadius();
 }
 
 void MuscleSimulation::reset() { has_previous_ = false; }
@@ -199,6 +189,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     const bool deep_contact_guard = stats.warm_started && stop.rule == StoppingRule::time_budget &&
                                     settings_.solver_kind == SolverKind::block_descent;
     for (int extra = 0; deep_contact_guard && extra < settings_.block_descent.deep_contact_sweeps &&
+                        median_collision_radius_m_ > 0 &&
                         stats.collision.max_penetration_muscle_bone_m > median_collision_radius_m_ &&
                         !stats.solver.diverged && !stats.solver.cancelled && !stats.solver.time_limit_reached;
          ++extra) {

@@ -208,10 +208,8 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   material_constant_n_ = springs.size() > 0 ? median(std::move(material)) : 1.0;
   mean_rest_length_ = springs.size() > 0 ? rest_sum / static_cast<double>(springs.size()) : 1.0;
 
-  std::vector<double> radii;
-  for (Eigen::Index i = 0; i < system_.radius.size(); ++i)
-    if (system_.radius[i] > 0) radii.push_back(system_.radius[i]);
-  const double typical_radius = radii.empty() ? mean_rest_length_ : median(std::move(radii));
+  const double median_radius = system_.medianCollisionRadius();
+  const double typical_radius = median_radius > 0 ? median_radius : mean_rest_length_;
   contact_stiffness_ = settings_.contact_stiffness_scale * material_constant_n_ / typical_radius;
   contact_margin_m_ = settings_.contact_margin_scale * typical_radius;
 

@@ -50,6 +50,9 @@ struct MassSpringSystem {
   Eigen::Index particleCount() const { return rest_position.cols(); }
   int muscleCount() const { return static_cast<int>(muscle_name.size()); }
   std::size_t modelBytes() const;  // heap bytes of the arrays above
+  // Median radius of the particles that collide (radius > 0), 0 when none does: the scale contacts and penetrations
+  // are judged by (a contact deeper than it puts a particle of median size with its centre inside).
+  double medianCollisionRadius() const;
 };
 
 // Dynamic state the solver advances. Kept apart from the model so one model serves many solves.

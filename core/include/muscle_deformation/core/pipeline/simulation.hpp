@@ -108,8 +108,7 @@ class MuscleSimulation {
   std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
   std::unique_ptr<CollisionWorld> collision_;
   std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields_;
-  // Of the particles that collide (infinite when none does): a bone contact deeper than this puts a particle of median
-  // size with its centre in the bone (BlockDescentSettings::deep_contact_sweeps).
+  // MassSpringSystem::medianCollisionRadius of the final model, once (BlockDescentSettings::deep_contact_sweeps).
   double median_collision_radius_m_ = 0;
   bool tissueDrag() const;  // block descent with tissue_relaxation_s > 0
 
