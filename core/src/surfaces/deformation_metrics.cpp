@@ -200,12 +200,20 @@ DeformationMetrics::DeformationMetrics(const std::vector<Bone>& bones, const std
   const Eigen::Index n = system.particleCount();
   particle_count_ = n;
   particle_reads_.assign(bone_fields_.size(), FieldReadCache(n));
-  particle_muscle_.resize(static_cast<std::size_t>(n));
   particle_own_bone_.assign(static_cast<std::size_t>(n), -1);
   for (Eigen::Index i = 0; i < n; ++i)
     if (system.is_fixed[static_cast<std::size_t>(i)]) particle_own_bone_[static_cast<std::size_t>(i)] = system.fixed_bone[i];
-  for (Eigen::Index i = 0; i < n; ++i)
-    particle_muscle_[static_cast<std::size_t>(i)] = system.fibre_of[i] == kTendonAnchor ? -1 : system.muscle_of[i];
+  muscle_particle_runs_.resize(muscle_names_.size());
+  const auto muscleOf = [&system](Eigen::Index i) {
+    return system.fibre_of[i] == kTendonAnchor ? -1 : system.muscle_of[i];
+  };
+  for (Eigen::Index begin = 0; begin < n;) {
+    const int muscle = muscleOf(begin);
+    Eigen::Index end = begin;
+    while (end < n && muscleOf(end) == muscle) ++end;
+    if (muscle >= 0) muscle_particle_runs_[static_cast<std::size_t>(muscle)].emplace_back(begin, end);
+    begin = end;
+  }
   Eigen::Index first = 0;
   for (Eigen::Index i = 1; i <= n; ++i)
     if (i == n || system.fibre_of[i] != system.fibre_of[i - 1] || system.muscle_of[i] != system.muscle_of[i - 1]) {
@@ -300,18 +308,8 @@ SceneMetrics DeformationMetrics::measureParticles(const Eigen::Matrix3Xd& partic
   SceneMetrics scene;
   scene.muscles.resize(muscle_names_.size());
   for (std::size_t m = 0; m < muscle_names_.size(); ++m) scene.muscles[m].name = muscle_names_[m];
-  // Each muscle's particles in runs (a muscle's particles are consecutive); its tendon anchors, a run of -1 after
-  // them, are the bones' own points and skipped. Muscles apart on the threads: each writes its own figures and its own
-  // particles' entries of the read caches.
-  std::vector<std::vector<std::pair<Eigen::Index, Eigen::Index>>> runs(muscle_names_.size());
-  for (Eigen::Index begin = 0; begin < particle_count_;) {
-    const int muscle = particle_muscle_[static_cast<std::size_t>(begin)];
-    Eigen::Index end = begin;
-    while (end < particle_count_ && particle_muscle_[static_cast<std::size_t>(end)] == muscle) ++end;
-    if (muscle >= 0) runs[static_cast<std::size_t>(muscle)].emplace_back(begin, end);
-    begin = end;
-  }
-  const long muscle_count = static_cast<long>(runs.size());
+  // Muscles apart on the threads: each writes its own figures and its own particles' entries of the read caches.
+  const long muscle_count = static_cast<long>(muscle_particle_runs_.size());
 #pragma omp parallel num_threads(std::max(1, threads))
   {
     PosedBones bones(bone_fields_, bone_transforms);
@@ -319,7 +317,7 @@ SceneMetrics DeformationMetrics::measureParticles(const Eigen::Matrix3Xd& partic
     for (long muscle = 0; muscle < muscle_count; ++muscle) {
       MuscleMetrics& out = scene.muscles[static_cast<std::size_t>(muscle)];
       int deepest_bone = -1;
-      for (const auto& [begin, end] : runs[static_cast<std::size_t>(muscle)]) {
+      for (const auto& [begin, end] : muscle_particle_runs_[static_cast<std::size_t>(muscle)]) {
         bones.lookNear(particle_positions.middleCols(begin, end - begin));
         for (Eigen::Index i = begin; i < end; ++i)
           out.particles_inside_bone += bones.inside(particle_reads_, i, particle_positions.col(i),

@@ -17,6 +17,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace muscle_deformation {
@@ -129,7 +130,9 @@ class DeformationMetrics {
   // Fibres: particle ranges [first, end) (tendon anchors belong to none), the muscle of each, rest lengths.
   std::vector<std::pair<Eigen::Index, Eigen::Index>> fibre_range_;
   Eigen::Index particle_count_ = 0;
-  std::vector<int> particle_muscle_;  // per particle its muscle, or -1 for a tendon's bone anchor (not measured)
+  // Per muscle, its particles as ranges [first, end) of consecutive indices; tendons' bone anchors belong to none (not
+  // measured: they are the bones' own points).
+  std::vector<std::vector<std::pair<Eigen::Index, Eigen::Index>>> muscle_particle_runs_;
   std::vector<int> particle_own_bone_;  // the bone a fixed particle is fixed to (not measured against it), else -1
   // What the last frames' reads proved (FieldReadCache): [muscle][bone] about each surface vertex, [bone] about each
   // particle.
