@@ -27,7 +27,6 @@
 #include <cstdio>
 #include <memory>
 #include <string>
-#include <thread>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -131,9 +130,7 @@ int main(int argc, char** argv) {
               static_cast<long>(system.particleCount()));
 
   // The surface stages and metrics run on the node's threads (every core by default), as in its pipeline.
-  const int surface_threads =
-      node.simulation.block_descent.threads > 0 ? node.simulation.block_descent.threads
-                                            : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int surface_threads = parallelThreads(node.simulation.block_descent);
   std::printf("[%6.1f s] surface stages and metrics on %d threads\n", elapsedSeconds(), surface_threads);
   const SkinningSettings node_skinning;  // the node's skinning defaults are the core's (config/muscle_deformation.yaml)
   std::vector<Variant> variants;

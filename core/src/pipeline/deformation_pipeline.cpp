@@ -1,9 +1,5 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
-#include <omp.h>
-
-#include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <sstream>
 
@@ -125,15 +121,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   return frame_;
 }
 
-int DeformationPipeline::surfaceThreads() const {
-  const BlockDescentSettings& solver = simulation_->settings().block_descent;
-  int threads = solver.threads > 0 ? solver.threads : omp_get_num_procs();
-  if (solver.limits.max_threads != nullptr) {
-    const int cap = solver.limits.max_threads->load(std::memory_order_relaxed);
-    if (cap > 0) threads = std::min(threads, cap);
-  }
-  return threads;
-}
+int DeformationPipeline::surfaceThreads() const { return parallelThreads(simulation_->settings().block_descent); }
 
 AbsentMetric DeformationPipeline::residualAbsence() const {
   const SolverKind kind = simulation_->settings().solver_kind;

@@ -18,6 +18,14 @@ double millisecondsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+int everyCore() {
+#ifdef _OPENMP
+  return omp_get_num_procs();
+#else
+  return 1;
+#endif
+}
+
 double median(std::vector<double> values) {
   if (values.empty()) return 0.0;
   const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
@@ -175,11 +183,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     : system_(system), settings_(settings) {
   if (const std::string problem = validate(settings_); !problem.empty())
     throw std::invalid_argument("block descent settings: " + problem);
-#ifdef _OPENMP
-  thread_count_ = settings_.threads > 0 ? settings_.threads : omp_get_num_procs();
-#else
-  thread_count_ = 1;
-#endif
+  thread_count_ = settings_.threads > 0 ? settings_.threads : everyCore();
   const Eigen::Index n = system_.particleCount();
   const SpringSet& springs = system_.springs;
 
@@ -338,9 +342,17 @@ int BlockDescentSolver::sweepThreads() const {
   const int threads =
       settings_.threads == BlockDescentSettings::kThreadsMeasured && thread_count_ > 1 ? measuredThreadChoice()
                                                                                          : thread_count_;
-  if (settings_.limits.max_threads == nullptr) return threads;
-  const int cap = settings_.limits.max_threads->load(std::memory_order_relaxed);
+  return cappedThreads(threads, settings_.limits);
+}
+
+int cappedThreads(int threads, const SolveLimits& limits) {
+  if (limits.max_threads == nullptr) return threads;
+  const int cap = limits.max_threads->load(std::memory_order_relaxed);
   return cap > 0 ? std::min(cap, threads) : threads;
+}
+
+int parallelThreads(const BlockDescentSettings& settings) {
+  return cappedThreads(settings.threads > 0 ? settings.threads : everyCore(), settings.limits);
 }
 
 int BlockDescentSolver::measuredThreadChoice() const {

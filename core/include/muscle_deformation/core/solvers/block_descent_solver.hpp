@@ -97,6 +97,12 @@ struct BlockDescentSettings {
 // Returns an empty string when the settings are usable, otherwise what is wrong.
 std::string validate(const BlockDescentSettings& settings);
 
+// The threads a parallel part runs on: settings.threads when positive, otherwise every core (0, and -1 before a
+// measurement chooses), at most what settings.limits.max_threads allows now.
+int parallelThreads(const BlockDescentSettings& settings);
+// `threads` within the cap SolveLimits::max_threads holds now (none or <= 0: no cap).
+int cappedThreads(int threads, const SolveLimits& limits);
+
 // Net force on every free particle at `position` (springs only), as the RMS over free particles relative to the
 // springs' material constant: the convergence measure of an equilibrium, for any solver's result. Contacts are not
 // included; benchmarks compare solvers on it at contact-free states or state it beside the penetration.
