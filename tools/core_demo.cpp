@@ -1,7 +1,7 @@
 // Core-only demo: the synthetic thigh flexes at hip and knee over a sequence of frames; each frame is solved warm
 // from the previous one. Prints per-frame statistics, writes them as CSV and the last frame's fibres as VTK.
 #include "muscle_deformation/core/io/mesh_io.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include <cstdio>
@@ -29,11 +29,10 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(out_dir);
 
   const SyntheticScene scene = makeSyntheticThigh();
-  SimulationSettings settings;
-  settings.verlet.stopping_rule = StoppingRule::displacement;
-  settings.verlet.displacement_tolerance_m = 1e-6;
-  settings.verlet.max_iterations = 400;
-  MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+  PipelineSettings settings;  // the seeds' Verlet solver, particles only
+  settings.skin_surfaces = settings.measure_fidelity = false;
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::atDisplacement(1e-6, 400));
+  DeformationPipeline simulation(describedByName(scene.muscles), scene.muscles, scene.bones, settings);
   const MassSpringSystem& system = simulation.system();
   std::printf("synthetic thigh: %d muscles, %ld particles, %zu springs, bone spheres", system.muscleCount(),
               static_cast<long>(system.particleCount()), system.springs.size());
@@ -47,7 +46,10 @@ int main(int argc, char** argv) {
   for (int frame = 0; frame < frames; ++frame) {
     const double phase = static_cast<double>(frame) / (frames - 1);
     const double hip = 0.8 * phase, knee = 1.0 * phase;
-    const FrameStats stats = simulation.solve(syntheticThighPose(hip, knee), StartMode::warm);
+    const FrameStats stats = simulation
+                                 .solve(boneTransformsOf(simulation.bones(), syntheticThighPose(hip, knee)),
+                                        StartMode::warm, stopping, false, false)
+                                 .stats;
     finite = finite && stats.finite;
     const SolveStats& solve = stats.solver;
     std::printf("frame %2d hip %.2f knee %.2f: %3d iterations%s, %6.1f ms (MSS %.1f, collision %.1f), spring deviation "

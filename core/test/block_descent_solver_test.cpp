@@ -2,11 +2,12 @@
 // independence and robustness on the synthetic thigh.
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
+#include "../src/pipeline/muscle_simulation.hpp"
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
@@ -18,6 +19,7 @@
 
 using namespace muscle_deformation;
 using muscle_deformation::testing::converging;
+using muscle_deformation::testing::solvePose;
 using muscle_deformation::testing::stateAt;
 
 namespace {
@@ -62,8 +64,8 @@ TEST(BlockDescent, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, links) = 15.0;  // the end pulled: every link at 1.5 m at equilibrium
   for (int i = 1; i < links; ++i) state.position(1, i) = 0.3 * std::sin(i);  // and a bent start
-  BlockDescentSolver solver(system, converging(5000, 1e-10));
-  const SolveStats stats = solver.solve(state);
+  BlockDescentSolver solver(system, {});
+  const SolveStats stats = solver.solve(state, converging(5000, 1e-10));
   EXPECT_TRUE(stats.converged);
   EXPECT_LT(stats.residual, 1e-10);
   for (int i = 0; i <= links; ++i) {
@@ -75,8 +77,8 @@ TEST(BlockDescent, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
 TEST(BlockDescent, StretchedBlockMatchesAnIndependentSolverAndIsAtRestWhenUnloaded) {
   const MassSpringSystem system = latticeBlock();
   ParticleState state = stateAt(system.rest_position);
-  BlockDescentSolver solver(system, converging(100, 1e-12));
-  SolveStats stats = solver.solve(state);  // at rest: nothing to do
+  BlockDescentSolver solver(system, {});
+  SolveStats stats = solver.solve(state, converging(100, 1e-12));  // at rest: nothing to do
   EXPECT_TRUE(stats.converged);
   EXPECT_LT((state.position - system.rest_position).cwiseAbs().maxCoeff(), 1e-12);
 
@@ -90,15 +92,11 @@ TEST(BlockDescent, StretchedBlockMatchesAnIndependentSolverAndIsAtRestWhenUnload
     if (pulled.rest_position(0, i) == 3.0) start.position(0, i) += 0.5;
   start.previous_position = start.position;
   ParticleState descent = start;
-  BlockDescentSolver block(pulled, converging(20000, 1e-11));
-  stats = block.solve(descent);
+  BlockDescentSolver block(pulled, {});
+  stats = block.solve(descent, converging(20000, 1e-11));
   EXPECT_TRUE(stats.converged);
-  VerletSettings verlet_settings;
-  verlet_settings.max_iterations = 200000;
-  verlet_settings.stopping_rule = StoppingRule::displacement;
-  verlet_settings.displacement_tolerance_m = 1e-13;
   ParticleState verlet = start;
-  VerletSolver(pulled, verlet_settings).solve(verlet);
+  VerletSolver(pulled, {}).solve(verlet, StoppingSettings::atDisplacement(1e-13, 200000));
   EXPECT_LT((descent.position - verlet.position).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT(relativeSpringResidual(pulled, descent.position), 1e-10);
   // The block got longer and, by symmetry, its centre line stayed on the mid-plane.
@@ -109,8 +107,8 @@ TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
   const MassSpringSystem system = fixedChain(10);
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 15.0;
-  BlockDescentSolver solver(system, converging(100000, 1e-4));
-  const SolveStats met = solver.solve(state);
+  BlockDescentSolver solver(system, {});
+  const SolveStats met = solver.solve(state, converging(100000, 1e-4));
   EXPECT_TRUE(met.converged);
   EXPECT_TRUE(met.stopping_rule_met);
   EXPECT_LT(met.residual, 1e-4);
@@ -118,8 +116,8 @@ TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
 
   ParticleState again = stateAt(system.rest_position);
   again.position(0, 10) = 15.0;
-  BlockDescentSolver capped(system, converging(2, 1e-12));
-  const SolveStats cut = capped.solve(again);
+  BlockDescentSolver capped(system, {});
+  const SolveStats cut = capped.solve(again, converging(2, 1e-12));
   EXPECT_FALSE(cut.converged);
   EXPECT_FALSE(cut.stopping_rule_met);
   EXPECT_EQ(cut.iterations, 2);
@@ -128,15 +126,15 @@ TEST(BlockDescent, ForceResidualRuleStopsBelowItsToleranceAndSaysSo) {
 
 TEST(BlockDescent, OtherSolversRefuseTheForceResidualRule) {
   const MassSpringSystem system = fixedChain(3);
-  VerletSettings verlet;
-  verlet.stopping_rule = StoppingRule::force_residual;
-  EXPECT_THROW(VerletSolver(system, verlet), std::invalid_argument);
-  LocalGlobalSettings local_global;
-  local_global.stopping_rule = StoppingRule::force_residual;
-  EXPECT_FALSE(validate(local_global).empty());
-  BlockDescentSettings bad;
-  bad.threads = -2;  // -1 is the measured choice, 0 every core
-  EXPECT_THROW(BlockDescentSolver(system, bad), std::invalid_argument);
+  // The rule comes with each solve now, so it is refused there.
+  const StoppingSettings residual_rule = converging(10, 1e-6);
+  VerletSolver verlet(system, {});
+  ParticleState state = stateAt(system.rest_position);
+  EXPECT_THROW(verlet.solve(state, residual_rule), std::invalid_argument);
+  LocalGlobalSolver local_global(system, {});
+  EXPECT_THROW(local_global.solve(state, residual_rule), std::invalid_argument);
+  // -1 is the measured choice, 0 every core
+  EXPECT_THROW(BlockDescentSolver(system, {}, -2), std::invalid_argument);
 }
 
 namespace {
@@ -164,7 +162,8 @@ TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
   system.radius.setConstant(0.1);
   const Eigen::Vector3d centre(0, -0.2, 0);
   const double distance = 0.5 + 0.1;  // sphere radius plus the particle's
-  BlockDescentSettings settings = converging(10000, 1e-9);
+  const BlockDescentSettings settings;
+  const StoppingSettings stopping = converging(10000, 1e-9);
   BlockDescentSolver solver(system, settings);
   solver.setContactQuery(
       [&](const ParticleState&, double, ContactSet& contacts) {
@@ -173,7 +172,7 @@ TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
       },
       false);
   ParticleState state = stateAt(system.rest_position);
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, stopping);
   EXPECT_TRUE(stats.converged);
   const double gap = (state.position.col(1) - centre).norm() - distance;
   // Pressed: the springs pull it down (about 2 x 5 N/m x 0.8 m), the contact holds it within force / stiffness.
@@ -182,14 +181,14 @@ TEST(BlockDescent, ContactKeepsAParticlePressedAgainstAFixedSphereOutsideIt) {
   EXPECT_NEAR(state.position(0, 1), 0.0, 1e-9);  // on the symmetry line
   // Without the sphere it would sink to the line between the ends.
   ParticleState free_state = stateAt(system.rest_position);
-  BlockDescentSolver(system, settings).solve(free_state);
+  BlockDescentSolver(system, settings).solve(free_state, stopping);
   EXPECT_NEAR(free_state.position(1, 1), 0.0, 1e-6);
 }
 
 TEST(BlockDescent, AHalfSpaceContactHoldsAParticleOnItsPlane) {
   // The same hung particle over a floor (a bone's field linearised): the plane y >= 0.3 holds it pressed on it.
   const MassSpringSystem system = hungParticle();
-  BlockDescentSolver solver(system, converging(10000, 1e-9));
+  BlockDescentSolver solver(system, {});
   solver.setContactQuery(
       [&](const ParticleState&, double, ContactSet& contacts) {
         contacts.clear();
@@ -197,7 +196,7 @@ TEST(BlockDescent, AHalfSpaceContactHoldsAParticleOnItsPlane) {
       },
       true);
   ParticleState state = stateAt(system.rest_position);
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, converging(10000, 1e-9));
   EXPECT_TRUE(stats.converged);
   const double gap = state.position(1, 1) - 0.3;
   EXPECT_LT(gap, 0.0);
@@ -210,18 +209,16 @@ TEST(BlockDescent, BonesAsDistanceFieldsKeepEveryParticleOutAfterALargePoseJumpO
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
-  settings.block_descent.stopping_rule = StoppingRule::iterations;
-  settings.block_descent.max_iterations = 10;
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(10));
   settings.collision.bone_proxy = BoneProxyKind::distance_field;
   settings.model.tendons = false;  // the fixture's muscle ends are built to be fixed beside their bones
   Eigen::Matrix3Xd positions[2];
   for (const int threads : {1, 2}) {
-    settings.block_descent.threads = threads;
-    MuscleSimulation simulation(scene.muscles, scene.bones, settings);
+    MuscleSimulation simulation(scene.muscles, scene.bones, settings, threads);
     ASSERT_EQ(simulation.boneFields().size(), scene.bones.size());
-    const FrameStats rest = simulation.solve(syntheticThighPose(0, 0), StartMode::cold);
+    const FrameStats rest = solvePose(simulation, syntheticThighPose(0, 0), StartMode::cold, stopping);
     EXPECT_EQ(rest.collision.muscle_bone_contacts, 0) << "the rest pose has no bone contact";
-    const FrameStats jump = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);
+    const FrameStats jump = solvePose(simulation, syntheticThighPose(1.6, 2.0), StartMode::warm, stopping);
     EXPECT_TRUE(jump.finite);
     EXPECT_FALSE(jump.solver.diverged);
     // Every free particle (not only boundary ones) within a tenth of a millimetre of its clearance.
@@ -236,18 +233,16 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
-  settings.block_descent.stopping_rule = StoppingRule::iterations;
-  settings.block_descent.max_iterations = 12;
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(12));
   for (const double relaxation_s : {0.0, 0.0005}) {  // quasi-static, and with the node's tissue drag and prediction
     settings.block_descent.tissue_relaxation_s = relaxation_s;
     Eigen::Matrix3Xd positions[2];
     int contacts[2] = {0, 0};
     for (const int threads : {1, 2}) {
-      settings.block_descent.threads = threads;
-      MuscleSimulation simulation(scene.muscles, scene.bones, settings);
-      simulation.solve(syntheticThighPose(0.4, 0.6), StartMode::cold);
-      simulation.solve(syntheticThighPose(0.5, 0.7), StartMode::warm);
-      const FrameStats stats = simulation.solve(syntheticThighPose(0.7, 1.0), StartMode::warm);
+      MuscleSimulation simulation(scene.muscles, scene.bones, settings, threads);
+      solvePose(simulation, syntheticThighPose(0.4, 0.6), StartMode::cold, stopping);
+      solvePose(simulation, syntheticThighPose(0.5, 0.7), StartMode::warm, stopping);
+      const FrameStats stats = solvePose(simulation, syntheticThighPose(0.7, 1.0), StartMode::warm, stopping);
       positions[threads - 1] = simulation.state().position;
       contacts[threads - 1] = stats.solver.contacts;
     }
@@ -276,7 +271,7 @@ Eigen::Vector3d pendulumAnswer(const Eigen::Vector3d& carried, double weight) {
 
 TEST(BlockDescent, TissueDragGivesAFloppyParticleOneAnswerTowardsWhereTheTissueCarriesIt) {
   const MassSpringSystem system = pendulum();
-  BlockDescentSettings settings = converging(200, 1e-12);
+  BlockDescentSettings settings;
   settings.tissue_relaxation_s = 0.005;
   BlockDescentSolver solver(system, settings);
   solver.setFrameInterval(0.01);  // w = 0.5 N/m
@@ -284,7 +279,7 @@ TEST(BlockDescent, TissueDragGivesAFloppyParticleOneAnswerTowardsWhereTheTissueC
   const Eigen::Vector3d carried(1.5, 1.0, 0.2);
   state.carried_position = state.position;
   state.carried_position.col(1) = carried;
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, converging(200, 1e-12));
   EXPECT_TRUE(stats.converged);
   EXPECT_LT((state.position.col(1) - pendulumAnswer(carried, 0.5)).norm(), 1e-9);
   EXPECT_LT(solver.residualOf(state), 1e-9);  // the drag is part of the frame's balance
@@ -295,7 +290,7 @@ TEST(BlockDescent, TissueDragGivesAFloppyParticleOneAnswerTowardsWhereTheTissueC
 
 TEST(BlockDescent, TissueDragWeighsByTheFrameIntervalWithinItsClamp) {
   const MassSpringSystem system = pendulum();
-  BlockDescentSettings settings = converging(200, 1e-12);
+  BlockDescentSettings settings;
   settings.tissue_relaxation_s = 0.005;
   BlockDescentSolver solver(system, settings);
   const Eigen::Vector3d carried(0.2, 2.0, 0.0);
@@ -304,7 +299,7 @@ TEST(BlockDescent, TissueDragWeighsByTheFrameIntervalWithinItsClamp) {
     ParticleState state = stateAt(system.rest_position);
     state.carried_position = state.position;
     state.carried_position.col(1) = carried;
-    solver.solve(state);
+    solver.solve(state, converging(200, 1e-12));
     return Eigen::Vector3d(state.position.col(1));
   };
   EXPECT_LT((solveAt(0.02) - pendulumAnswer(carried, 0.25)).norm(), 1e-9);
@@ -322,20 +317,18 @@ TEST(BlockDescent, ThePredictedStartChangesWhereSweepsBeginNotTheFramesAnswer) {
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
   settings.block_descent.tissue_relaxation_s = 0.0005;
-  settings.stopping.rule = StoppingRule::force_residual;
-  settings.stopping.max_iterations = 5000;
-  settings.block_descent.residual_tolerance = 1e-9;
-  shareStoppingRule(settings);
+  const FrameStopping stopping = FrameStopping::of(converging(5000, 1e-9));
   // No prediction; the last correction carried on; and that plus half its last change (predict_extrapolation).
   Eigen::Matrix3Xd answers[3];
   int last_sweeps[3] = {0, 0, 0};
   for (const int variant : {0, 1, 2}) {
-    settings.block_descent.predict_start = variant > 0;
-    settings.block_descent.predict_extrapolation = variant == 2 ? 0.5 : 0.0;
+    settings.prediction.predict_start = variant > 0;
+    settings.prediction.predict_extrapolation = variant == 2 ? 0.5 : 0.0;
     MuscleSimulation simulation(scene.muscles, scene.bones, settings);
-    simulation.solve(syntheticThighPose(0.0, 0.0), StartMode::cold);
+    solvePose(simulation, syntheticThighPose(0.0, 0.0), StartMode::cold, stopping);
     for (int frame = 1; frame <= 4; ++frame) {
-      const FrameStats stats = simulation.solve(syntheticThighPose(0.05 * frame, 0.08 * frame), StartMode::warm);
+      const FrameStats stats =
+          solvePose(simulation, syntheticThighPose(0.05 * frame, 0.08 * frame), StartMode::warm, stopping);
       ASSERT_TRUE(stats.solver.converged) << "variant " << variant << ", frame " << frame;
       if (frame == 4) last_sweeps[variant] = stats.solver.iterations;
     }
@@ -349,7 +342,7 @@ TEST(BlockDescent, ThePredictedStartChangesWhereSweepsBeginNotTheFramesAnswer) {
 }
 
 TEST(BlockDescent, PredictExtrapolationBeyondWhatStaysStableIsRefused) {
-  BlockDescentSettings settings;
+  StartPrediction settings;
   settings.predict_extrapolation = 0.75;
   EXPECT_TRUE(validate(settings).empty());
   settings.predict_extrapolation = 1.0;  // linear extrapolation diverged on the bundled gait
@@ -362,35 +355,31 @@ TEST(BlockDescent, AThreadCapIsReadBeforeEverySweepAndMovesNoParticle) {
   const MassSpringSystem system = fixedChain(40);
   ParticleState start = stateAt(system.rest_position);
   start.position(0, 40) = 60.0;
-  BlockDescentSettings settings = converging(50, 0);
-  settings.stopping_rule = StoppingRule::iterations;
-  settings.threads = 2;
+  StoppingSettings stopping = StoppingSettings::afterIterations(50);
   std::atomic<int> cap{0};
-  settings.limits.max_threads = &cap;
-  BlockDescentSolver solver(system, settings);
-  EXPECT_EQ(solver.sweepThreads(), 2);  // 0: no cap
+  stopping.limits.max_threads = &cap;
+  BlockDescentSolver solver(system, {}, 2);
+  EXPECT_EQ(solver.sweepThreads(stopping.limits), 2);  // 0: no cap
   cap = 1;
-  EXPECT_EQ(solver.sweepThreads(), 1);
+  EXPECT_EQ(solver.sweepThreads(stopping.limits), 1);
   cap = 8;
-  EXPECT_EQ(solver.sweepThreads(), 2);  // a cap above the solver's own count changes nothing
+  EXPECT_EQ(solver.sweepThreads(stopping.limits), 2);  // a cap above the solver's own count changes nothing
 
   ParticleState capped = start, free_running = start;
   cap = 1;
-  solver.solve(capped);
+  solver.solve(capped, stopping);
   cap = 0;
-  solver.solve(free_running);
+  solver.solve(free_running, stopping);
   EXPECT_TRUE((capped.position.array() == free_running.position.array()).all());  // bit for bit
 }
 
 TEST(BlockDescent, WithMeasuredThreadsOneThreadAndEveryCoreAreBothMeasuredAgainAndMoveNoParticle) {
   const MassSpringSystem system = fixedChain(40);
-  BlockDescentSettings settings = converging(1, 0);
-  settings.stopping_rule = StoppingRule::iterations;  // one sweep per solve: a frame at the node's budget
-  settings.threads = BlockDescentSettings::kThreadsMeasured;
-  BlockDescentSolver measured(system, settings);
+  const StoppingSettings stopping = StoppingSettings::afterIterations(1);  // one sweep per solve: a frame at the
+                                                                         // node's budget
+  BlockDescentSolver measured(system, {}, BlockDescentSolver::kThreadsMeasured);
   if (measured.threadCount() < 2) GTEST_SKIP() << "one core: nothing to choose";
-  settings.threads = 1;
-  BlockDescentSolver single(system, settings);
+  BlockDescentSolver single(system, {}, 1);
   ParticleState a = stateAt(system.rest_position), b = a;
   a.position(0, 40) = b.position(0, 40) = 60.0;
   // Every core first, then one thread, then the faster with the slower again every kThreadProbeInterval sweeps.
@@ -401,8 +390,8 @@ TEST(BlockDescent, WithMeasuredThreadsOneThreadAndEveryCoreAreBothMeasuredAgainA
     const int threads = measured.sweepThreads();
     if (k == 1) EXPECT_EQ(threads, 1);
     (threads == 1 ? on_one : on_every) += 1;
-    measured.solve(a);
-    single.solve(b);
+    measured.solve(a, stopping);
+    single.solve(b, stopping);
   }
   EXPECT_GE(std::min(on_one, on_every), 3) << "the slower is measured again";
   EXPECT_TRUE((a.position.array() == b.position.array()).all());  // bit for bit
@@ -413,11 +402,11 @@ TEST(BlockDescent, AFrameAfterALargePoseJumpStaysFiniteAndOutOfTheBones) {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
-  settings.block_descent.stopping_rule = StoppingRule::iterations;
-  settings.block_descent.max_iterations = 10;
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(10));
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
-  simulation.solve(syntheticThighPose(0, 0), StartMode::cold);
-  const FrameStats stats = simulation.solve(syntheticThighPose(1.6, 2.0), StartMode::warm);  // ~90 and ~115 degrees
+  solvePose(simulation, syntheticThighPose(0, 0), StartMode::cold, stopping);
+  const FrameStats stats =
+      solvePose(simulation, syntheticThighPose(1.6, 2.0), StartMode::warm, stopping);  // ~90 and ~115 degrees
   EXPECT_TRUE(stats.finite);
   EXPECT_FALSE(stats.solver.diverged);
   EXPECT_TRUE(simulation.state().position.allFinite());
@@ -428,26 +417,26 @@ TEST(BlockDescent, TimeBudgetNeverStartsASweepPastItButAlwaysTakesOne) {
   const MassSpringSystem system = fixedChain(10);
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 15.0;
-  BlockDescentSettings settings;
-  settings.stopping_rule = StoppingRule::time_budget;
-  settings.time_budget_ms = 0.0;  // no time at all: still one sweep, and no second
-  settings.max_iterations = 1000;
-  BlockDescentSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  // No time at all: still one sweep, and no second.
+  const StoppingSettings stopping = StoppingSettings::withinBudget(0.0, 1000);
+  BlockDescentSolver solver(system, {});
+  const SolveStats stats = solver.solve(state, stopping);
   EXPECT_EQ(stats.iterations, 1);
   EXPECT_TRUE(stats.stopping_rule_met);
-  EXPECT_FALSE(stats.converged);  // a deadline is not convergence
+  // A deadline is not convergence: converged is the residual criterion, which one sweep from this start is far from.
+  EXPECT_FALSE(stats.converged);
+  EXPECT_GT(stats.residual, stopping.residual_tolerance);
 }
 
 TEST(BlockDescent, ResidualOfMeasuresAnyStateAndIsSmallAtTheSolversEquilibrium) {
   const MassSpringSystem system = fixedChain(10);
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 15.0;
-  BlockDescentSolver solver(system, converging(100000, 1e-9));
+  BlockDescentSolver solver(system, {});
   const double before = solver.residualOf(state);
   // Only particle 9 is loaded: its link to the end moved from x = 10 to 15 is 6 m long at rest length 1 m, so it pulls
   // with 5 N (stiffness 1 N/m). The RMS over the 9 free particles is 5 / 3 N, relative to the material constant 1 N.
   EXPECT_NEAR(before, 5.0 / 3.0, 1e-12);
-  solver.solve(state);
+  solver.solve(state, converging(100000, 1e-9));
   EXPECT_LT(solver.residualOf(state), 1e-8);
 }

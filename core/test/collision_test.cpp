@@ -1,5 +1,6 @@
 // Specification of the sphere collision stage (thesis 4.3, GRAPP 2014 section 3.3).
 #include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/collision_radii.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
@@ -688,13 +689,12 @@ TEST(CollisionIntegration, SmallMusclePressedAgainstABonePlateEndsOutsideThePlat
   md::CollisionWorld world(system, {plate_bone});
   world.setBoneTransforms({Eigen::Isometry3d(Eigen::Translation3d(0, 0, 0.008))});
 
-  md::VerletSettings solver_settings;
-  solver_settings.max_iterations = 400;
-  md::VerletSolver solver(system, solver_settings);
+  md::VerletSolver solver(system, md::VerletSettings{});
   auto state = md::restState(system);
   const md::CollisionStats before = world.measure(state);
   ASSERT_GT(before.muscle_bone_contacts, 0) << "the raised plate must press into the muscle";
-  const md::SolveStats solve = solver.solve(state, [&](md::ParticleState& s) { return world.resolve(s); });
+  const md::SolveStats solve = solver.solve(state, md::StoppingSettings::afterIterations(400),
+                                            [&](md::ParticleState& s) { return world.resolve(s); });
   const md::CollisionStats after = world.measure(state);
 
   // Tolerance: collision runs last in every iteration and resolves each contact exactly, so what can remain is only

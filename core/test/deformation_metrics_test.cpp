@@ -116,7 +116,7 @@ TEST(ClosedSurfaceInsideTest, RefusesAnOpenSurface) {
   try {
     md::ClosedSurfaceInsideTest test(open, "bone 'femur'");
     FAIL() << "an open surface was accepted";
-  } catch (const md::MetricsError& error) {
+  } catch (const md::OpenSurfaceError& error) {
     const std::string message = error.what();
     EXPECT_NE(message.find("femur"), std::string::npos) << message;
     EXPECT_NE(message.find("not closed"), std::string::npos) << message;

@@ -1,5 +1,5 @@
 // Specifications of the basic mesh geometry: bounds, topology checks, volume, normals, closest points.
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include "test_helpers.hpp"
 

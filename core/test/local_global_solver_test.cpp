@@ -2,11 +2,11 @@
 // analytic systems.
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/core/model/spring_layout.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
+#include "../src/pipeline/muscle_simulation.hpp"
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
@@ -16,6 +16,7 @@
 
 using namespace muscle_deformation;
 using muscle_deformation::testing::stateAt;
+using muscle_deformation::testing::solvePose;
 
 namespace {
 
@@ -97,12 +98,15 @@ std::pair<MassSpringSystem, ParticleState> bentBeam(int length, double angle_rad
   return {system, state};
 }
 
-LocalGlobalSettings quasiStatic(int max_iterations, double tolerance_m) {
+LocalGlobalSettings quasiStatic() {
   LocalGlobalSettings settings;
   settings.quasi_static = true;
-  settings.max_iterations = max_iterations;
-  settings.displacement_tolerance_m = tolerance_m;
   return settings;
+}
+
+// Until the mean step falls below `tolerance_m` (and stops growing), at most `max_iterations` iterations.
+StoppingSettings settling(int max_iterations, double tolerance_m) {
+  return StoppingSettings::atDisplacement(tolerance_m, max_iterations);
 }
 
 }  // namespace
@@ -112,7 +116,7 @@ TEST(LocalGlobalSolver, ImplicitSolveOfSingleSpringConvergesToRestLength) {
   positions << 0, 1, 0, 0, 0, 0;
   const MassSpringSystem system = systemFromParticles(positions, {{0, 1}}, 1.0, 1.0);
   for (const bool quasi_static : {true, false}) {
-    LocalGlobalSettings settings = quasiStatic(2000, 1e-12);
+    LocalGlobalSettings settings = quasiStatic();
     settings.quasi_static = quasi_static;
     settings.time_step_s = 0.1;
     settings.damping = 0.2;
@@ -120,7 +124,7 @@ TEST(LocalGlobalSolver, ImplicitSolveOfSingleSpringConvergesToRestLength) {
     ParticleState state = stateAt(positions);
     state.position(0, 1) = 1.5;  // stretched by half its rest length
     state.previous_position = state.position;
-    const SolveStats stats = solver.solve(state);
+    const SolveStats stats = solver.solve(state, settling(2000, 1e-12));
     EXPECT_TRUE(stats.stopping_rule_met) << "quasi_static " << quasi_static;
     EXPECT_NEAR((state.position.col(1) - state.position.col(0)).norm(), 1.0, 1e-6) << "quasi_static " << quasi_static;
     // Equal masses, no external force: the centre stays where it was.
@@ -131,11 +135,11 @@ TEST(LocalGlobalSolver, ImplicitSolveOfSingleSpringConvergesToRestLength) {
 TEST(LocalGlobalSolver, ChainBetweenTwoFixedParticlesReachesUniformStrain) {
   const int links = 10;
   const MassSpringSystem system = fixedChain(links);
-  LocalGlobalSolver solver(system, quasiStatic(5000, 1e-13));
+  LocalGlobalSolver solver(system, quasiStatic());
   ParticleState state = stateAt(system.rest_position);
   state.position(0, links) = 15.0;  // the end pulled from 10 to 15: every link strained by 0.5 at equilibrium
   state.position(1, 3) = 0.3;       // and a sideways kink the springs must straighten
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, settling(5000, 1e-13));
   EXPECT_TRUE(stats.stopping_rule_met);
   for (int i = 0; i <= links; ++i) {
     EXPECT_NEAR(state.position(0, i), 1.5 * i, 1e-6) << "particle " << i;
@@ -156,19 +160,16 @@ TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
     VerletSettings verlet_settings;
     verlet_settings.mass_rule = MassRule::uniform;
     verlet_settings.dt_s = factor * bound;
-    verlet_settings.max_iterations = 200;
     VerletSolver verlet(system, verlet_settings);
     ParticleState verlet_state = start;
     // Verlet diverges at these steps; it now notices, restores its start and retries with halved steps.
-    const SolveStats verlet_stats = verlet.solve(verlet_state);
+    const SolveStats verlet_stats = verlet.solve(verlet_state, StoppingSettings::afterIterations(200));
     EXPECT_GT(verlet_stats.divergence_recoveries, 0) << "Verlet at " << factor << "x its stability bound";
     EXPECT_LT(verlet_stats.time_step_s, bound * 2) << "Verlet at " << factor << "x its stability bound";
 
     LocalGlobalSettings settings;
     settings.quasi_static = false;
     settings.time_step_s = factor * bound;
-    settings.max_iterations = 2000;
-    settings.displacement_tolerance_m = 1e-9;
     LocalGlobalSolver solver(system, settings);
     ParticleState state = start;
     // Step by step: the energy must never exceed the start's (implicit Euler only dissipates from rest).
@@ -177,7 +178,7 @@ TEST(LocalGlobalSolver, LargeTimeStepsStayStableWhereVerletBlowsUp) {
       max_energy = std::max(max_energy, springEnergy(system, s.position));
       return 0;
     };
-    const SolveStats stats = solver.solve(state, watch);
+    const SolveStats stats = solver.solve(state, settling(2000, 1e-9), watch);
     EXPECT_TRUE(state.position.allFinite()) << factor << "x";
     EXPECT_LE(max_energy, start_energy) << factor << "x";
     EXPECT_TRUE(stats.stopping_rule_met) << factor << "x: " << stats.iterations << " iterations";
@@ -190,14 +191,14 @@ TEST(LocalGlobalSolver, QuasiStaticAndDynamicModesReachTheSameEquilibrium) {
   const MassSpringSystem system = jitteredCube(side);
   const ParticleState start = squeezedCube(system, side, 2.2);
   ParticleState quasi_state = start, dynamic_state = start;
-  LocalGlobalSolver quasi(system, quasiStatic(20000, 1e-12));
-  LocalGlobalSettings dynamic_settings = quasiStatic(20000, 1e-12);
+  LocalGlobalSolver quasi(system, quasiStatic());
+  LocalGlobalSettings dynamic_settings = quasiStatic();
   dynamic_settings.quasi_static = false;
   dynamic_settings.time_step_s = 0.5;
   dynamic_settings.damping = 0.3;
   LocalGlobalSolver dynamic(system, dynamic_settings);
-  EXPECT_TRUE(quasi.solve(quasi_state).stopping_rule_met);
-  EXPECT_TRUE(dynamic.solve(dynamic_state).stopping_rule_met);
+  EXPECT_TRUE(quasi.solve(quasi_state, settling(20000, 1e-12)).stopping_rule_met);
+  EXPECT_TRUE(dynamic.solve(dynamic_state, settling(20000, 1e-12)).stopping_rule_met);
   EXPECT_LT((quasi_state.position - dynamic_state.position).cwiseAbs().maxCoeff(), 1e-4);
 }
 
@@ -213,12 +214,12 @@ TEST(LocalGlobalSolver, VolumeTermKeepsCompressedCubeVolumeWithinFourPercent) {
   ASSERT_GT(tetrahedra.tetrahedra.size(), 100u);
 
   auto volumeError = [&](double weight) {
-    LocalGlobalSettings settings = quasiStatic(3000, 1e-9);
+    LocalGlobalSettings settings = quasiStatic();
     settings.volume_weight = weight;
     settings.volume_tolerance = 0.005;
     LocalGlobalSolver solver(system, settings);
     ParticleState state = start;
-    const SolveStats stats = solver.solve(state);
+    const SolveStats stats = solver.solve(state, settling(3000, 1e-9));
     EXPECT_TRUE(state.position.allFinite());
     EXPECT_GT(stats.iterations, 0);
     return std::abs(muscleVolumeChange(tetrahedra, state.position)[0]);
@@ -235,7 +236,7 @@ TEST(LocalGlobalSolver, VolumeTermKeepsCompressedCubeVolumeWithinFourPercent) {
 TEST(LocalGlobalSolver, PrefactoredMatrixIsReusedAcrossIterationsAndFrames) {
   const int side = 4;
   const MassSpringSystem system = jitteredCube(side);
-  LocalGlobalSettings settings = quasiStatic(50, 1e-9);
+  LocalGlobalSettings settings = quasiStatic();
   settings.volume_weight = 1.0;
   LocalGlobalSolver solver(system, settings);
   EXPECT_EQ(solver.factorisations(), 1);
@@ -243,7 +244,7 @@ TEST(LocalGlobalSolver, PrefactoredMatrixIsReusedAcrossIterationsAndFrames) {
   for (int frame = 0; frame < 20; ++frame) {
     // Every frame a different pose of the fixed particles: only the right-hand side changes.
     ParticleState state = squeezedCube(system, side, 3.0 - 0.05 * frame);
-    total_iterations += solver.solve(state).iterations;
+    total_iterations += solver.solve(state, settling(50, 1e-9)).iterations;
   }
   EXPECT_GT(total_iterations, 100);
   EXPECT_EQ(solver.factorisations(), 1);
@@ -253,14 +254,14 @@ TEST(LocalGlobalSolver, FixedParticlesNeverMove) {
   const int side = 4;
   const MassSpringSystem system = jitteredCube(side);
   for (const bool quasi_static : {true, false}) {
-    LocalGlobalSettings settings = quasiStatic(100, 0);
+    LocalGlobalSettings settings = quasiStatic();
     settings.quasi_static = quasi_static;
     settings.volume_weight = 2.0;
     LocalGlobalSolver solver(system, settings);
     ParticleState state = squeezedCube(system, side, 2.0);
     state.position.array() += 0.25;  // the pose moved everything, fixed particles included
     const Eigen::Matrix3Xd entry = state.position;
-    solver.solve(state);
+    solver.solve(state, settling(100, 0));
     for (Eigen::Index p = 0; p < system.particleCount(); ++p)
       if (system.is_fixed[static_cast<std::size_t>(p)]) {
         EXPECT_EQ(state.position.col(p), entry.col(p)) << "particle " << p;
@@ -273,9 +274,7 @@ TEST(LocalGlobalSolver, CollisionHookIsCalledAfterEveryGlobalStep) {
   // per global step, and its corrections are kept: the result respects the plane.
   const int side = 4;
   const MassSpringSystem system = jitteredCube(side);
-  LocalGlobalSettings settings = quasiStatic(40, 0);
-  settings.stopping_rule = StoppingRule::iterations;
-  LocalGlobalSolver solver(system, settings);
+  LocalGlobalSolver solver(system, quasiStatic());
   ParticleState state = squeezedCube(system, side, 3.0);
   int calls = 0;
   const AfterUpdateHook plane = [&](ParticleState& s) {
@@ -289,7 +288,7 @@ TEST(LocalGlobalSolver, CollisionHookIsCalledAfterEveryGlobalStep) {
       }
     return contacts;
   };
-  const SolveStats stats = solver.solve(state, plane);
+  const SolveStats stats = solver.solve(state, StoppingSettings::afterIterations(40), plane);
   EXPECT_EQ(stats.iterations, 40);
   EXPECT_EQ(calls, 40);
   for (Eigen::Index p = 0; p < system.particleCount(); ++p)
@@ -302,13 +301,13 @@ TEST(LocalGlobalSolver, ChebyshevAccelerationReachesTheSameShape) {
   const int side = 5;
   const MassSpringSystem system = jitteredCube(side);
   const ParticleState start = squeezedCube(system, side, 3.0);
-  LocalGlobalSettings plain_settings = quasiStatic(5000, 1e-11);
+  LocalGlobalSettings plain_settings = quasiStatic();
   LocalGlobalSettings fast_settings = plain_settings;
   fast_settings.chebyshev_rho = 0.9;
   ParticleState plain = start, fast = start;
   LocalGlobalSolver plain_solver(system, plain_settings), fast_solver(system, fast_settings);
-  const SolveStats plain_stats = plain_solver.solve(plain);
-  const SolveStats fast_stats = fast_solver.solve(fast);
+  const SolveStats plain_stats = plain_solver.solve(plain, settling(5000, 1e-11));
+  const SolveStats fast_stats = fast_solver.solve(fast, settling(5000, 1e-11));
   EXPECT_TRUE(plain_stats.stopping_rule_met);
   EXPECT_TRUE(fast_stats.stopping_rule_met);
   EXPECT_LT((plain.position - fast.position).cwiseAbs().maxCoeff(), 1e-5);
@@ -318,13 +317,13 @@ TEST(LocalGlobalSolver, ChebyshevAccelerationReachesTheSameShape) {
 
 TEST(LocalGlobalSolver, QuasiNewtonReachesTheSameShapeInFarFewerIterations) {
   const auto [system, start] = bentBeam(16, 1.0);
-  LocalGlobalSettings plain_settings = quasiStatic(50000, 1e-10);
+  LocalGlobalSettings plain_settings = quasiStatic();
   LocalGlobalSettings newton_settings = plain_settings;
   newton_settings.lbfgs_history = 8;
   ParticleState plain = start, newton = start;
   LocalGlobalSolver plain_solver(system, plain_settings), newton_solver(system, newton_settings);
-  const SolveStats plain_stats = plain_solver.solve(plain);
-  const SolveStats newton_stats = newton_solver.solve(newton);
+  const SolveStats plain_stats = plain_solver.solve(plain, settling(50000, 1e-10));
+  const SolveStats newton_stats = newton_solver.solve(newton, settling(50000, 1e-10));
   ASSERT_TRUE(plain_stats.stopping_rule_met);
   ASSERT_TRUE(newton_stats.stopping_rule_met);
   // Same minimum: positions agree far below the particle spacing (1), and the energy is no higher.
@@ -366,13 +365,12 @@ TEST(LocalGlobalSolver, MuscleSimulationFactorisesWithTheRadiiTheCollisionSetUpL
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::local_global;
-  settings.local_global.max_iterations = 40;
-  settings.local_global.stopping_rule = StoppingRule::iterations;
+  const StoppingSettings forty = StoppingSettings::afterIterations(40);
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   ASSERT_GT(simulation.restOverlaps().spheres_removed + simulation.restOverlaps().muscle_bone_pairs, 0)
       << "the scene must have rest overlaps for this test to mean anything";
   const Pose pose = syntheticThighPose(0.4, 0.6);
-  simulation.solve(pose, StartMode::cold);
+  solvePose(simulation, pose, StartMode::cold, FrameStopping::of(forty));
 
   // The same solve from public pieces, every one built on the final system.
   const MassSpringSystem& system = simulation.system();
@@ -388,7 +386,7 @@ TEST(LocalGlobalSolver, MuscleSimulationFactorisesWithTheRadiiTheCollisionSetUpL
   ParticleState state;
   rigidPretransform(system, transforms, state);
   LocalGlobalSolver solver(system, settings.local_global);
-  solver.solve(state, [&](ParticleState& s) { return world.resolve(s); });
+  solver.solve(state, forty, [&](ParticleState& s) { return world.resolve(s); });
   EXPECT_EQ((state.position - simulation.state().position).cwiseAbs().maxCoeff(), 0.0);
 }
 
@@ -397,10 +395,10 @@ TEST(LocalGlobalSolver, MuscleSimulationRunsTheChosenSolver) {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::local_global;
-  settings.local_global.max_iterations = 300;
+  const FrameStopping stopping = FrameStopping::of(settling(300, 1e-6));
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   for (const double hip : {0.2, 0.4}) {
-    const FrameStats stats = simulation.solve(syntheticThighPose(hip, 0.5), StartMode::warm);
+    const FrameStats stats = solvePose(simulation, syntheticThighPose(hip, 0.5), StartMode::warm, stopping);
     EXPECT_TRUE(stats.finite);
     EXPECT_GT(stats.solver.iterations, 0);
     EXPECT_LT(stats.solver.max_strain, 0.6);  // the Verlet solver leaves up to 0.5 on this coarse model

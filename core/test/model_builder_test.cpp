@@ -1,6 +1,6 @@
 // Building the mass-spring system from muscles and bones, and moving it with the bones.
 #include "muscle_deformation/core/model/model_builder.hpp"
-#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/base/point_index.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
@@ -454,11 +454,8 @@ TEST(RigidPretransform, RigidMotionOfTheWholeSceneLeavesTheSpringsAtRest) {
   const Eigen::Isometry3d motion = Eigen::Translation3d(0.3, 0, 0) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitY());
   ParticleState state;
   rigidPretransform(system, {motion, motion}, state);
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-12;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, StoppingSettings::atDisplacement(1e-12, 100));
   EXPECT_LT(stats.spring_deviation_ratio, 1e-12);
   EXPECT_LE(stats.iterations, 2);
 }

@@ -1,16 +1,17 @@
 // Newton-Krylov solver: the same frame energy as block descent (springs, contacts, tissue drag), minimised globally.
 #include "muscle_deformation/core/model/model_builder.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/newton_krylov_solver.hpp"
 #include "muscle_deformation/core/solvers/solver_factory.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
+#include "../src/pipeline/muscle_simulation.hpp"
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
 using namespace muscle_deformation;
 using muscle_deformation::testing::converging;
+using muscle_deformation::testing::solvePose;
 using muscle_deformation::testing::stateAt;
 
 TEST(NewtonKrylov, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
@@ -21,10 +22,10 @@ TEST(NewtonKrylov, ChainStretchedBetweenFixedEndsReachesUniformStrain) {
   for (int i = 0; i < 5; ++i) springs.emplace_back(i, i + 1);
   MassSpringSystem system = systemFromParticles(positions, springs, 1.0, 1.0);
   system.is_fixed[0] = system.is_fixed[5] = 1;
-  NewtonKrylovSolver solver(system, converging(50, 1e-12), {});
+  NewtonKrylovSolver solver(system, {}, {});
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 5) = 6.0;
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, converging(50, 1e-12));
   EXPECT_TRUE(stats.converged);
   EXPECT_LE(stats.iterations, 5);  // Newton on a quadratic along the chain: a step or two
   for (int i = 0; i < 6; ++i) EXPECT_NEAR(state.position(0, i), 1.2 * i, 1e-9);
@@ -36,7 +37,7 @@ TEST(NewtonKrylov, TissueDragAnswerOfAFloppyParticleMatchesTheAnalyticOne) {
   positions << 0, 1, 0, 0, 0, 0;
   MassSpringSystem system = systemFromParticles(positions, {{0, 1}}, 1.0, 1.0);
   system.is_fixed[0] = 1;
-  BlockDescentSettings energy = converging(100, 1e-12);
+  BlockDescentSettings energy;
   energy.tissue_relaxation_s = 0.005;
   NewtonKrylovSolver solver(system, energy, {});
   solver.setFrameInterval(0.01);  // drag weight 0.5 N/m
@@ -44,7 +45,7 @@ TEST(NewtonKrylov, TissueDragAnswerOfAFloppyParticleMatchesTheAnalyticOne) {
   const Eigen::Vector3d carried(1.5, 1.0, 0.2);
   state.carried_position = state.position;
   state.carried_position.col(1) = carried;
-  EXPECT_TRUE(solver.solve(state).converged);
+  EXPECT_TRUE(solver.solve(state, converging(100, 1e-12)).converged);
   const Eigen::Vector3d expected = (1.0 + 0.5 * carried.norm()) / 1.5 * carried.normalized();
   EXPECT_LT((state.position.col(1) - expected).norm(), 1e-9);
 }
@@ -56,10 +57,7 @@ TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.block_descent.tissue_relaxation_s = 0.0005;
-  settings.stopping.rule = StoppingRule::force_residual;
-  settings.stopping.max_iterations = 4000;
-  settings.block_descent.residual_tolerance = 1e-8;
-  shareStoppingRule(settings);
+  const FrameStopping stopping = FrameStopping::of(converging(4000, 1e-8));
   Eigen::Matrix3Xd answers[2], first_frame;
   int contacts = 0;
   const BoneTransforms first_pose = boneTransformsOf(scene.bones, syntheticThighPose(0.3, 0.5));
@@ -67,12 +65,12 @@ TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {
     settings.solver_kind = kind;
     MuscleSimulation simulation(scene.muscles, scene.bones, settings);
     if (kind == SolverKind::block_descent) {
-      simulation.solve(first_pose, StartMode::cold);
+      simulation.solve(first_pose, StartMode::cold, stopping);
       first_frame = simulation.state().position;
     } else {
       simulation.continueFrom(first_pose, first_frame);  // only the second frame's solver differs
     }
-    const FrameStats stats = simulation.solve(syntheticThighPose(0.45, 0.7), StartMode::warm);
+    const FrameStats stats = solvePose(simulation, syntheticThighPose(0.45, 0.7), StartMode::warm, stopping);
     ASSERT_TRUE(stats.solver.converged) << toString(kind);
     if (kind == SolverKind::block_descent) contacts = stats.solver.contacts;
     answers[kind == SolverKind::newton_krylov] = simulation.state().position;

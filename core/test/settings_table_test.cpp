@@ -68,10 +68,13 @@ TEST(SettingsTable, BadValuesAreDescribed) {
 TEST(SettingsTable, AYamlFileIsReadThroughTheTableAndABadValueNamesFileAndKey) {
   const fs::path path = fs::temp_directory_path() / "md_settings_table_test.yaml";
   std::ofstream(path) << "max_iterations: 45\nsolver: local_global\nfix_fibre_ends: false\ntf_wait_s: 3\n"
-                         "attachment_distance_m: 0\n";
+                         "attachment_distance_m: 0\nrefine_unfinished_frames: false\nthreads: 1\n";
   md::CoreSettings settings = md::nodeDefaultSettings();
+  ASSERT_TRUE(settings.stream.refine_unfinished_frames);
   md::readSettingsYaml(path.string(), settings);
-  EXPECT_EQ(settings.pipeline.simulation.stopping.max_iterations, 45);
+  EXPECT_EQ(settings.stream.stopping.sweeps.max_iterations, 45);
+  EXPECT_FALSE(settings.stream.refine_unfinished_frames);
+  EXPECT_EQ(settings.pipeline.threads, 1);
   EXPECT_EQ(settings.pipeline.simulation.solver_kind, md::SolverKind::local_global);
   EXPECT_FALSE(settings.pipeline.simulation.model.fix_fibre_ends);
   EXPECT_EQ(settings.pipeline.simulation.model.attachment_distance_m, 0.0);  // an integer where a number is asked

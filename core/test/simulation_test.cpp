@@ -1,14 +1,17 @@
 // The whole core pipeline: model, collision and solver behind MuscleSimulation.
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/pipeline/settings_table.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include "../src/pipeline/muscle_simulation.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
 #include <vector>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::solvePose;
 
 #ifndef MD_PACKAGE_DIR
 #define MD_PACKAGE_DIR "."
@@ -21,9 +24,11 @@ SimulationSettings smallSettings() {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
-  settings.verlet.max_iterations = 50;
   return settings;
 }
+
+// 50 iterations a frame (the settings' Verlet solver).
+FrameStopping smallStopping() { return FrameStopping::of(StoppingSettings::afterIterations(50)); }
 
 std::vector<Muscle> packedMuscles() {
   return {makeSpindleMuscle("left", {-0.017, 0, 0}, {-0.017, 0, 0.2}, 0.02, 1.0, 4, 30),
@@ -41,7 +46,7 @@ TEST(RestOverlaps, TouchingMusclesAndBonesDoNotDeformAtRest) {
   MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
   const RestOverlapSummary& cleared = simulation.restOverlaps();
   EXPECT_GT(cleared.muscle_muscle_pairs + cleared.muscle_bone_pairs, 0) << "the fixture should overlap at rest";
-  const FrameStats stats = simulation.solve(Pose{}, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, Pose{}, StartMode::cold, smallStopping());
   // The rigid pre-transform blends identity transforms, exact up to rounding.
   EXPECT_LT((simulation.state().position - simulation.system().rest_position).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_EQ(stats.collision.max_penetration_muscle_muscle_m, 0.0);
@@ -92,10 +97,12 @@ TEST(Simulation, WarmStartAfterAColdOneStartsFromThePreviousResult) {
   MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
   Pose pose;
   pose.bone_transforms["rod"] = Eigen::Isometry3d(Eigen::Translation3d(0.004, 0, 0));
-  EXPECT_FALSE(simulation.solve(pose, StartMode::warm).warm_started);  // nothing to warm-start from yet
-  EXPECT_TRUE(simulation.solve(pose, StartMode::warm).warm_started);
+  const FrameStopping stopping = smallStopping();
+  // Nothing to warm-start from yet.
+  EXPECT_FALSE(solvePose(simulation, pose, StartMode::warm, stopping).warm_started);
+  EXPECT_TRUE(solvePose(simulation, pose, StartMode::warm, stopping).warm_started);
   simulation.reset();
-  EXPECT_FALSE(simulation.solve(pose, StartMode::warm).warm_started);
+  EXPECT_FALSE(solvePose(simulation, pose, StartMode::warm, stopping).warm_started);
 }
 
 TEST(Simulation, ANonFinitePoseIsRejected) {
@@ -104,43 +111,47 @@ TEST(Simulation, ANonFinitePoseIsRejected) {
   Eigen::Isometry3d broken = Eigen::Isometry3d::Identity();
   broken.translation().x() = std::nan("");
   pose.bone_transforms["rod"] = broken;
-  EXPECT_THROW(simulation.solve(pose, StartMode::cold), std::invalid_argument);
+  EXPECT_THROW(solvePose(simulation, pose, StartMode::cold, smallStopping()), std::invalid_argument);
 }
 
 TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSweepsPastTheBudget) {
   // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget): a warm jump from rest to 90 deg
   // hip flexion leaves particle centres in the pelvis after that sweep; a small step leaves none.
   const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
-  SimulationSettings settings = nodeDefaultSettings().pipeline.simulation;
-  settings.stopping.time_budget_ms = 0;
-  shareStoppingRule(settings);
+  const CoreSettings node = nodeDefaultSettings();
+  const SimulationSettings settings = node.pipeline.simulation;
+  FrameStopping stopping = node.stream.stopping;
+  stopping.sweeps.time_budget_ms = 0;
   const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
   struct Frames {
     FrameStats small_step, jump;
     double median_radius_m = 0;
   };
   const auto run = [&](int deep_contact_sweeps) {
-    SimulationSettings chosen = settings;
-    chosen.block_descent.deep_contact_sweeps = deep_contact_sweeps;
-    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, chosen);
+    FrameStopping chosen = stopping;
+    chosen.deep_contact_sweeps = deep_contact_sweeps;
+    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings, node.pipeline.threads);
     Frames frames;
     frames.median_radius_m = simulation.system().medianCollisionRadius();
-    simulation.solve(hipFlexion(0), StartMode::cold);
-    frames.small_step = simulation.solve(hipFlexion(0.01), StartMode::warm);
-    frames.jump = simulation.solve(hipFlexion(1.5707963267948966), StartMode::warm);
+    solvePose(simulation, hipFlexion(0), StartMode::cold, chosen);
+    frames.small_step = solvePose(simulation, hipFlexion(0.01), StartMode::warm, chosen);
+    frames.jump = solvePose(simulation, hipFlexion(1.5707963267948966), StartMode::warm, chosen);
     return frames;
   };
   const Frames budget_only = run(0);
   const Frames guarded = run(2);
   ASSERT_GT(budget_only.jump.collision.max_penetration_muscle_bone_m, budget_only.median_radius_m);
   EXPECT_EQ(budget_only.jump.solver.iterations, 1);
+  EXPECT_EQ(budget_only.jump.deep_contact_sweeps, 0);
   ASSERT_LT(budget_only.small_step.collision.max_penetration_muscle_bone_m, budget_only.median_radius_m);
   EXPECT_EQ(guarded.small_step.solver.iterations, 1) << "a smooth step keeps its budget";
+  EXPECT_EQ(guarded.small_step.deep_contact_sweeps, 0);
   EXPECT_EQ(guarded.small_step.collision.max_penetration_muscle_bone_m,
             budget_only.small_step.collision.max_penetration_muscle_bone_m);
   // The jump gets more sweeps, never more than allowed, and stops once no centre is left in the bone.
   EXPECT_GT(guarded.jump.solver.iterations, 1);
   EXPECT_LE(guarded.jump.solver.iterations, 1 + 2);
+  EXPECT_EQ(guarded.jump.deep_contact_sweeps, guarded.jump.solver.iterations - 1);  // the frame says how many
   EXPECT_LE(guarded.jump.collision.max_penetration_muscle_bone_m, guarded.median_radius_m);
   EXPECT_TRUE(guarded.jump.finite);
 }

@@ -43,13 +43,12 @@ double secondsOf(const std::function<void()>& run) {
 TEST(SolveLimits, WallTimeLimitEndsAVerletSolveUnderTheIterationsRule) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(50, state);
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::iterations;
-  settings.max_iterations = std::numeric_limits<int>::max();  // unbounded but for the limit
-  settings.limits.wall_time_limit_ms = 50;
-  VerletSolver solver(system, settings);
+  // Unbounded but for the limit.
+  StoppingSettings stopping = StoppingSettings::afterIterations(std::numeric_limits<int>::max());
+  stopping.limits.wall_time_limit_ms = 50;
+  VerletSolver solver(system, VerletSettings{});
   SolveStats stats;
-  const double seconds = secondsOf([&] { stats = solver.solve(state); });
+  const double seconds = secondsOf([&] { stats = solver.solve(state, stopping); });
   EXPECT_TRUE(stats.time_limit_reached);
   EXPECT_FALSE(stats.stopping_rule_met) << "the iteration count was not reached";
   EXPECT_FALSE(stats.converged);
@@ -64,9 +63,8 @@ TEST(SolveLimits, WallTimeLimitEndsALocalGlobalSolveUnderTheIterationsRule) {
     const MassSpringSystem system = pulledChain(50, state);
     LocalGlobalSettings settings;
     settings.lbfgs_history = history;
-    settings.stopping_rule = StoppingRule::iterations;
-    settings.max_iterations = std::numeric_limits<int>::max();
-    settings.limits.wall_time_limit_ms = 50;
+    StoppingSettings stopping = StoppingSettings::afterIterations(std::numeric_limits<int>::max());
+    stopping.limits.wall_time_limit_ms = 50;
     // A contact hook that keeps moving one particle, so L-BFGS never runs out of descent before the limit.
     int calls = 0;
     const AfterUpdateHook jiggle = [&](ParticleState& s) {
@@ -75,7 +73,7 @@ TEST(SolveLimits, WallTimeLimitEndsALocalGlobalSolveUnderTheIterationsRule) {
     };
     LocalGlobalSolver solver(system, settings);
     SolveStats stats;
-    const double seconds = secondsOf([&] { stats = solver.solve(state, jiggle); });
+    const double seconds = secondsOf([&] { stats = solver.solve(state, stopping, jiggle); });
     EXPECT_TRUE(stats.time_limit_reached) << "history " << history;
     EXPECT_FALSE(stats.stopping_rule_met) << "history " << history;
     EXPECT_LT(seconds, 2.0) << "history " << history;
@@ -86,48 +84,42 @@ TEST(SolveLimits, RaisedCancelFlagStopsTheSolveAfterOneIteration) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(20, state);
   std::atomic<bool> cancel{true};
-  VerletSettings settings;
-  settings.max_iterations = 1000000;
-  settings.limits.cancel = &cancel;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  StoppingSettings stopping = StoppingSettings::afterIterations(1000000);
+  stopping.limits.cancel = &cancel;
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, stopping);
   EXPECT_TRUE(stats.cancelled);
   EXPECT_EQ(stats.iterations, 1);
   EXPECT_FALSE(stats.converged);
 }
 
-TEST(SolveLimits, SetStoppingChangesLaterSolvesWithoutRebuilding) {
+TEST(SolveLimits, EachSolveStopsAsItsOwnStoppingSaysWithoutRebuilding) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(20, state);
   VerletSolver solver(system, VerletSettings());
-  solver.setStopping(StoppingRule::iterations, 7, 1e-6, 16, SolveLimits());
-  EXPECT_EQ(solver.solve(state).iterations, 7);
-  EXPECT_THROW(solver.setStopping(StoppingRule::iterations, -1, 1e-6, 16, SolveLimits()), std::invalid_argument);
+  EXPECT_EQ(solver.solve(state, StoppingSettings::afterIterations(7)).iterations, 7);
+  EXPECT_EQ(solver.solve(state, StoppingSettings::afterIterations(3)).iterations, 3);  // the same solver
+  EXPECT_THROW(solver.solve(state, StoppingSettings::afterIterations(-1)), std::invalid_argument);
 }
 
 TEST(Converged, OnlyWhenTheDisplacementToleranceIsMet) {
   ParticleState state;
   const MassSpringSystem system = pulledChain(8, state);
   const ParticleState start = state;
-  VerletSettings settings;
-  settings.max_iterations = 50;  // far from settled
-  VerletSolver by_count(system, settings);
-  const SolveStats counted = by_count.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats counted = solver.solve(state, StoppingSettings::afterIterations(50));  // far from settled
   EXPECT_TRUE(counted.stopping_rule_met) << "the iterations rule ran its count";
   EXPECT_FALSE(counted.converged) << "running out of iterations is not convergence";
 
   state = start;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-10;
-  settings.max_iterations = 200000;
-  VerletSolver by_tolerance(system, settings);
-  const SolveStats settled = by_tolerance.solve(state);
+  VerletSolver by_tolerance(system, VerletSettings{});
+  const SolveStats settled = by_tolerance.solve(state, StoppingSettings::atDisplacement(1e-10, 200000));
   EXPECT_TRUE(settled.converged);
 
   state = start;
-  settings.max_iterations = 10;  // the tolerance cannot be met in 10 iterations
-  VerletSolver capped(system, settings);
-  const SolveStats unsettled = capped.solve(state);
+  VerletSolver capped(system, VerletSettings{});
+  // The tolerance cannot be met in 10 iterations.
+  const SolveStats unsettled = capped.solve(state, StoppingSettings::atDisplacement(1e-10, 10));
   EXPECT_FALSE(unsettled.stopping_rule_met);
   EXPECT_FALSE(unsettled.converged);
 }

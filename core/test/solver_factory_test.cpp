@@ -2,13 +2,16 @@
 // the factory solver's answer from the same start.
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/core/solvers/solver_factory.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include "../src/pipeline/muscle_simulation.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
 using namespace muscle_deformation;
+using muscle_deformation::testing::solvePose;
 
 namespace {
 
@@ -17,10 +20,14 @@ SimulationSettings smallSettings(SolverKind kind) {
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
   settings.solver_kind = kind;
-  settings.verlet.max_iterations = 25;
-  settings.local_global.max_iterations = 6;
   settings.collisions = false;  // the solver alone
   return settings;
+}
+
+// Verlet: 25 iterations; local/global: its displacement rule, at most 6 iterations.
+StoppingSettings smallStopping(SolverKind kind) {
+  return kind == SolverKind::verlet ? StoppingSettings::afterIterations(25)
+                                    : StoppingSettings::atDisplacement(1e-6, 6);
 }
 
 }  // namespace
@@ -49,10 +56,11 @@ TEST(SolverFactory, TheSimulationAnswersExactlyAsTheFactorySolverFromTheSameStar
     rigidPretransform(system, boneTransformsOf(scene.bones, pose), state);
     const std::unique_ptr<SoftBodySolver> solver =
         makeSolver(SolverChoice{kind, settings.verlet, settings.local_global, {}, {}}, system);
-    const SolveStats direct = solver->solve(state);
+    const SolveStats direct = solver->solve(state, smallStopping(kind));
 
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), settings);
-    const FrameStats through_simulation = simulation.solve(pose, StartMode::cold);
+    const FrameStats through_simulation =
+        solvePose(simulation, pose, StartMode::cold, FrameStopping::of(smallStopping(kind)));
     EXPECT_EQ(through_simulation.solver.iterations, direct.iterations) << toString(kind);
     EXPECT_EQ(simulation.state().position, state.position) << toString(kind);
   }
@@ -62,7 +70,12 @@ TEST(SolverFactory, NewStoppingReachesWhicheverSolverRuns) {
   for (const SolverKind kind : {SolverKind::verlet, SolverKind::local_global}) {
     SyntheticScene scene = makeSyntheticThigh(1, 4);
     MuscleSimulation simulation(std::move(scene.muscles), std::move(scene.bones), smallSettings(kind));
-    simulation.setStopping(StoppingRule::iterations, 3, 1e-6, 16.0, SolveLimits{});
-    EXPECT_EQ(simulation.solve(syntheticThighPose(0.3, 0.0), StartMode::cold).solver.iterations, 3) << toString(kind);
+    const FrameStopping three = FrameStopping::of(StoppingSettings::afterIterations(3));
+    EXPECT_EQ(solvePose(simulation, syntheticThighPose(0.3, 0.0), StartMode::cold, three).solver.iterations, 3)
+        << toString(kind);
+    // The next solve stops as its own stopping says, on the same simulation.
+    const FrameStopping five = FrameStopping::of(StoppingSettings::afterIterations(5));
+    EXPECT_EQ(solvePose(simulation, syntheticThighPose(0.3, 0.0), StartMode::cold, five).solver.iterations, 5)
+        << toString(kind);
   }
 }

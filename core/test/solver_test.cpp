@@ -58,11 +58,9 @@ MassSpringSystem fixedChain(int links) {
 
 TEST(Spring, AtRestLengthExertsNoForce) {
   const MassSpringSystem system = twoParticleSpring();
-  VerletSettings settings;
-  settings.max_iterations = 10;
-  VerletSolver solver(system, settings);
+  VerletSolver solver(system, VerletSettings{});
   ParticleState state = stateAt(system.rest_position);
-  solver.solve(state);
+  solver.solve(state, StoppingSettings::afterIterations(10));
   EXPECT_EQ(state.position, system.rest_position);
 }
 
@@ -103,12 +101,8 @@ TEST(Chain, StretchedBetweenFixedEndsConvergesToUniformStrain) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, links) = 1.5 * links;  // pull the right end: every spring should end 50 % longer
   state.previous_position = state.position;
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-12;
-  settings.max_iterations = 200000;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, StoppingSettings::atDisplacement(1e-12, 200000));
   EXPECT_TRUE(stats.stopping_rule_met);
   for (int i = 0; i < links; ++i) {
     const double length = (state.position.col(i + 1) - state.position.col(i)).norm();
@@ -126,10 +120,8 @@ TEST(FixedParticles, NeverMove) {
   state.position(1, 2) = 0.7;  // disturb a free particle so forces act on the fixed ends too
   state.previous_position = state.position;
   const Eigen::Vector3d left = state.position.col(0), right = state.position.col(links);
-  VerletSettings settings;
-  settings.max_iterations = 500;
-  VerletSolver solver(system, settings);
-  solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  solver.solve(state, StoppingSettings::afterIterations(500));
   EXPECT_EQ(Eigen::Vector3d(state.position.col(0)), left);
   EXPECT_EQ(Eigen::Vector3d(state.position.col(links)), right);
   EXPECT_NE(state.position(1, 2), 0.7);
@@ -183,9 +175,8 @@ TEST(AdaptiveTimeStep, NeverExceedsTheFixedStepOrFallsBelowTheClamp) {
   settings.dt_rule = TimeStepRule::adaptive;
   settings.dt_s = 0.2;
   settings.dt_min_s = 0.01;
-  settings.max_iterations = 200;
   VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  const SolveStats stats = solver.solve(state, StoppingSettings::afterIterations(200));
   EXPECT_LE(stats.max_dt_s, 0.2);
   EXPECT_GE(stats.min_dt_s, 0.01);
   EXPECT_LT(stats.min_dt_s, 0.2);  // the stretched chain did force smaller steps
@@ -194,21 +185,15 @@ TEST(AdaptiveTimeStep, NeverExceedsTheFixedStepOrFallsBelowTheClamp) {
 TEST(StoppingRule, FixedIterationCountRunsExactlyThatMany) {
   const MassSpringSystem system = fixedChain(4);
   ParticleState state = stateAt(system.rest_position);
-  VerletSettings settings;
-  settings.max_iterations = 37;
-  VerletSolver solver(system, settings);
-  EXPECT_EQ(solver.solve(state).iterations, 37);
+  VerletSolver solver(system, VerletSettings{});
+  EXPECT_EQ(solver.solve(state, StoppingSettings::afterIterations(37)).iterations, 37);
 }
 
 TEST(StoppingRule, DisplacementStopsEarlyAtRest) {
   const MassSpringSystem system = fixedChain(4);
   ParticleState state = stateAt(system.rest_position);
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-9;
-  settings.max_iterations = 1000;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, StoppingSettings::atDisplacement(1e-9, 1000));
   EXPECT_EQ(stats.iterations, 2);  // the second iteration shows the displacement is not growing
   EXPECT_TRUE(stats.stopping_rule_met);
 }
@@ -221,11 +206,8 @@ TEST(StoppingRule, DisplacementDoesNotStopWhileASolveFromRestIsSpeedingUp) {
   state.previous_position = state.position;
   VerletSettings settings;
   settings.dt_s = 1e-4;  // tiny steps: the first displacements are far below the tolerance
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-6;
-  settings.max_iterations = 50;
   VerletSolver solver(system, settings);
-  EXPECT_EQ(solver.solve(state).iterations, 50);
+  EXPECT_EQ(solver.solve(state, StoppingSettings::atDisplacement(1e-6, 50)).iterations, 50);
 }
 
 TEST(StoppingRule, TimeBudgetEndsTheSolveAfterTheBudget) {
@@ -233,12 +215,8 @@ TEST(StoppingRule, TimeBudgetEndsTheSolveAfterTheBudget) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 2000) = 3000;
   state.previous_position = state.position;
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::time_budget;
-  settings.time_budget_ms = 5.0;
-  settings.max_iterations = 100000000;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, StoppingSettings::withinBudget(5.0, 100000000));
   EXPECT_TRUE(stats.stopping_rule_met);
   EXPECT_GE(stats.total_ms, 5.0);
   EXPECT_LT(stats.iterations, 100000000);
@@ -249,12 +227,8 @@ TEST(StoppingRule, DisplacementReportsNotMetWhenTheCapEndsTheSolve) {
   ParticleState state = stateAt(system.rest_position);
   state.position(0, 10) = 20;
   state.previous_position = state.position;
-  VerletSettings settings;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = 1e-15;
-  settings.max_iterations = 3;
-  VerletSolver solver(system, settings);
-  const SolveStats stats = solver.solve(state);
+  VerletSolver solver(system, VerletSettings{});
+  const SolveStats stats = solver.solve(state, StoppingSettings::atDisplacement(1e-15, 3));
   EXPECT_EQ(stats.iterations, 3);
   EXPECT_FALSE(stats.stopping_rule_met);
 }
@@ -263,7 +237,7 @@ TEST(Solver, RejectsAStateOfTheWrongSize) {
   const MassSpringSystem system = fixedChain(3);
   VerletSolver solver(system, VerletSettings{});
   ParticleState state = stateAt(Eigen::Matrix3Xd::Zero(3, 2));
-  EXPECT_THROW(solver.solve(state), std::invalid_argument);
+  EXPECT_THROW(solver.solve(state, StoppingSettings{}), std::invalid_argument);
 }
 
 TEST(Solver, RejectsNegativeSettings) {
@@ -271,19 +245,19 @@ TEST(Solver, RejectsNegativeSettings) {
   VerletSettings settings;
   settings.dt_s = -1;
   EXPECT_THROW(VerletSolver(system, settings), std::invalid_argument);
-  settings = VerletSettings{};
-  settings.max_iterations = -5;
-  EXPECT_THROW(VerletSolver(system, settings), std::invalid_argument);
+  // The iteration cap comes with each solve now, so a negative one is refused there.
+  VerletSolver solver(system, VerletSettings{});
+  ParticleState state = stateAt(system.rest_position);
+  EXPECT_THROW(solver.solve(state, StoppingSettings::afterIterations(-5)), std::invalid_argument);
 }
 
 TEST(Solver, CollisionHookRunsAfterEveryUpdateAndItsTimeIsCounted) {
   const MassSpringSystem system = fixedChain(3);
   ParticleState state = stateAt(system.rest_position);
-  VerletSettings settings;
-  settings.max_iterations = 12;
-  VerletSolver solver(system, settings);
+  VerletSolver solver(system, VerletSettings{});
   int calls = 0;
-  const SolveStats stats = solver.solve(state, [&](ParticleState&) { return ++calls; });
+  const SolveStats stats =
+      solver.solve(state, StoppingSettings::afterIterations(12), [&](ParticleState&) { return ++calls; });
   EXPECT_EQ(calls, 12);
   EXPECT_EQ(stats.contacts, 12);
 }

@@ -6,9 +6,9 @@
 // that made things worse than doing nothing, which is what divergence or a bad recovery would leave.
 // Penetration bound: no particle sphere may sink into a bone sphere deeper than the median particle sphere radius;
 // deeper means its centre is inside the bone, i.e. the particle has tunnelled.
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
+#include "../src/pipeline/muscle_simulation.hpp"
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
@@ -21,6 +21,7 @@
 
 using namespace muscle_deformation;
 using muscle_deformation::testing::errorMessageOf;
+using muscle_deformation::testing::solvePose;
 
 namespace {
 
@@ -34,12 +35,14 @@ SimulationSettings smallSettings() {
   SimulationSettings settings;
   settings.model.particles_per_fibre = 10;
   settings.model.nearest_neighbours = 8;
-  settings.verlet.max_iterations = 100;  // the node's default
   // The fixture's muscles end beside their bones by construction, to be fixed there: these cases test the solver on
   // that model (the tendon model's hard cases are measured on the bundled scene by the stability benchmark).
   settings.model.tendons = false;
   return settings;
 }
+
+// 100 iterations a frame (the node's default max_iterations) for the settings' Verlet solver.
+FrameStopping smallStopping() { return FrameStopping::of(StoppingSettings::afterIterations(100)); }
 
 bool statsFinite(const FrameStats& stats) {
   const SolveStats& s = stats.solver;
@@ -79,11 +82,9 @@ Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& 
 Eigen::Matrix3Xd convergedShape(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                 SimulationSettings settings, const Pose& pose) {
   settings.verlet.dt_s = 0;
-  settings.verlet.stopping_rule = StoppingRule::displacement;
-  settings.verlet.displacement_tolerance_m = 1e-9;
-  settings.verlet.max_iterations = 20000;
   MuscleSimulation reference(muscles, bones, settings);
-  const FrameStats stats = reference.solve(pose, StartMode::cold);
+  const FrameStats stats =
+      solvePose(reference, pose, StartMode::cold, FrameStopping::of(StoppingSettings::atDisplacement(1e-9, 20000)));
   EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   return reference.state().position;
 }
@@ -149,9 +150,9 @@ TEST(DivergenceMonitor, NonFiniteStepsAlwaysCount) {
 TEST(Stability, PoseJumpFromRestToNinetyDegreesHipFlexionInOneWarmFrame) {
   const SyntheticScene scene = smallThigh();
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
-  simulation.solve(syntheticThighPose(0, 0), StartMode::warm);
+  solvePose(simulation, syntheticThighPose(0, 0), StartMode::warm, smallStopping());
   const Pose flexed = syntheticThighPose(90 * kDegree, 0);
-  const FrameStats stats = simulation.solve(flexed, StartMode::warm);
+  const FrameStats stats = solvePose(simulation, flexed, StartMode::warm, smallStopping());
   EXPECT_TRUE(stats.warm_started);
   expectBoundedWithoutDivergence(simulation, stats, convergedShape(scene.muscles, scene.bones, smallSettings(), flexed),
                                  pretransformOf(simulation, flexed));
@@ -161,7 +162,7 @@ TEST(Stability, ExtremeOfTheGaitRangeHip110Knee130Degrees) {
   const SyntheticScene scene = smallThigh();
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
   const Pose extreme = syntheticThighPose(110 * kDegree, 130 * kDegree);
-  const FrameStats stats = simulation.solve(extreme, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, extreme, StartMode::cold, smallStopping());
   expectBoundedWithoutDivergence(simulation, stats, convergedShape(scene.muscles, scene.bones, smallSettings(), extreme),
                                  pretransformOf(simulation, extreme));
 }
@@ -173,7 +174,7 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   settings.verlet.dt_s = 10 * stable_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
 
   expectAllFinite(simulation, stats);
   EXPECT_GT(stats.solver.divergence_recoveries, 0);
@@ -193,21 +194,21 @@ TEST(Stability, TenTimesTheLargestStableStepIsDetectedHalvedAndKept) {
   SimulationSettings halved = settings;
   halved.verlet.dt_s = stats.solver.time_step_s;
   MuscleSimulation direct(scene.muscles, scene.bones, halved);
-  const FrameStats direct_stats = direct.solve(pose, StartMode::cold);
+  const FrameStats direct_stats = solvePose(direct, pose, StartMode::cold, smallStopping());
   EXPECT_EQ(direct_stats.solver.divergence_recoveries, 0);
   EXPECT_EQ(rmsDistance(simulation.state().position, direct.state().position), 0.0);
 
   // The recovered step is stable, not just stable for 100 iterations: a long solve with it settles without any
   // recovery. (stabilityTimeStep is a Gershgorin bound, conservative: the step found may lie a little above it.)
-  halved.verlet.max_iterations = 5000;
-  halved.verlet.stopping_rule = StoppingRule::displacement;
   MuscleSimulation long_solve(scene.muscles, scene.bones, halved);
-  const FrameStats long_stats = long_solve.solve(pose, StartMode::cold);
+  const FrameStats long_stats =
+      solvePose(long_solve, pose, StartMode::cold, FrameStopping::of(StoppingSettings::atDisplacement(1e-6, 5000)));
   EXPECT_EQ(long_stats.solver.divergence_recoveries, 0);
   EXPECT_TRUE(long_stats.solver.stopping_rule_met);
 
   // The halved step is kept: the next frame does not diverge again.
-  const FrameStats next = simulation.solve(syntheticThighPose(50 * kDegree, 35 * kDegree), StartMode::warm);
+  const FrameStats next =
+      solvePose(simulation, syntheticThighPose(50 * kDegree, 35 * kDegree), StartMode::warm, smallStopping());
   EXPECT_EQ(next.solver.divergence_recoveries, 0);
   EXPECT_EQ(next.solver.time_step_s, stats.solver.time_step_s);
   expectAllFinite(simulation, next);
@@ -222,7 +223,7 @@ TEST(Stability, StiffnessTimesThousandWithThePreviouslyStableStep) {
   settings.verlet.dt_s = previous_step_s;
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
 
   expectAllFinite(simulation, stats);
   EXPECT_GT(stats.solver.divergence_recoveries, 0);
@@ -249,7 +250,7 @@ TEST(Stability, EveryAttemptDivergingLeavesTheEntryStateAndSaysSo) {
   settings.verlet.dt_s = 1e4 * largestStableStep(MuscleSimulation(scene.muscles, scene.bones, settings).system());
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   const Pose pose = syntheticThighPose(45 * kDegree, 30 * kDegree);
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
   expectAllFinite(simulation, stats);
   EXPECT_TRUE(stats.solver.diverged);
   EXPECT_EQ(stats.solver.divergence_recoveries, VerletSolver::kMaxRecoveries);
@@ -294,7 +295,7 @@ TEST(Stability, TwoMusclesStartingInterpenetratedByFiveMillimetres) {
   // The model must not read the rest overlap as a collision to resolve: the rest shape stays exactly at rest.
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
   EXPECT_GT(simulation.restOverlaps().muscle_muscle_pairs, 0);
-  const FrameStats rest = simulation.solve(Pose{}, StartMode::cold);
+  const FrameStats rest = solvePose(simulation, Pose{}, StartMode::cold, smallStopping());
   expectAllFinite(simulation, rest);
   EXPECT_EQ(rest.solver.divergence_recoveries, 0);
   EXPECT_LT((simulation.state().position - simulation.system().rest_position).cwiseAbs().maxCoeff(), 1e-12);
@@ -304,7 +305,7 @@ TEST(Stability, TwoMusclesStartingInterpenetratedByFiveMillimetres) {
   // collision pass pushes them apart in one jump, which must not read as divergence.
   Pose pressed;
   pressed.bone_transforms["right_rod"] = Eigen::Isometry3d(Eigen::Translation3d(-0.005, 0, 0));
-  const FrameStats stats = simulation.solve(pressed, StartMode::warm);
+  const FrameStats stats = solvePose(simulation, pressed, StartMode::warm, smallStopping());
   ParticleState start = restState(simulation.system());
   start.position = start.previous_position = pretransformOf(simulation, pressed);
   const double start_overlap_m = simulation.collisionWorld()->measure(start).max_penetration_muscle_muscle_m;
@@ -331,12 +332,12 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
   const double radius_m = simulation.system().medianCollisionRadius();
   ASSERT_GT(radius_m, 0);
   const double step_m = 1.5 * radius_m;
-  simulation.solve(Pose{}, StartMode::warm);
+  solvePose(simulation, Pose{}, StartMode::warm, smallStopping());
   double worst_penetration_m = 0;
   for (double x = -0.035; x <= 0.035; x += step_m) {
     Pose pose;
     pose.bone_transforms["rod"] = Eigen::Isometry3d(Eigen::Translation3d(0.3 + x, 0, 0));
-    const FrameStats stats = simulation.solve(pose, StartMode::warm);
+    const FrameStats stats = solvePose(simulation, pose, StartMode::warm, smallStopping());
     SCOPED_TRACE("rod at x = " + std::to_string(x));
     expectAllFinite(simulation, stats);
     EXPECT_EQ(stats.solver.divergence_recoveries, 0);
@@ -349,7 +350,7 @@ TEST(Stability, BoneMovingThroughAMuscleFasterThanAParticleRadiusPerFrame) {
   gone.bone_transforms["rod"] = Eigen::Isometry3d(Eigen::Translation3d(0.6, 0, 0));
   double previous_rms_m = rmsDistance(simulation.state().position, simulation.system().rest_position);
   for (int frame = 0; frame < 5; ++frame) {
-    const FrameStats after = simulation.solve(gone, StartMode::warm);
+    const FrameStats after = solvePose(simulation, gone, StartMode::warm, smallStopping());
     expectAllFinite(simulation, after);
     EXPECT_EQ(after.solver.divergence_recoveries, 0);
     const double rms_m = rmsDistance(simulation.state().position, simulation.system().rest_position);
@@ -392,7 +393,7 @@ TEST(Stability, DegenerateFibresAreSampledOrSkippedByName) {
 
   Pose pose;
   pose.bone_transforms["top"] = Eigen::Isometry3d(Eigen::Translation3d(0.02, 0, -0.03));
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
   expectBoundedWithoutDivergence(simulation, stats, convergedShape({muscle}, bones, smallSettings(), pose),
                                  pretransformOf(simulation, pose));
 
@@ -418,7 +419,7 @@ TEST(Stability, AMuscleWhoseParticlesAreAllFixed) {
   Pose pose;
   pose.bone_transforms["plate"] =
       Eigen::Isometry3d(Eigen::Translation3d(0.01, 0.02, 0.03) * Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitX()));
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
   expectAllFinite(simulation, stats);
   EXPECT_EQ(stats.solver.divergence_recoveries, 0);
   EXPECT_FALSE(stats.solver.diverged);
@@ -434,7 +435,7 @@ TEST(Stability, AMuscleFarFromEveryBone) {
   scene.muscles.push_back(makeSpindleMuscle("far", {1.0, 0, -0.35}, {1.0, 0, -0.05}, 0.02, 1.0, 3, 30));
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
   const Pose pose = syntheticThighPose(90 * kDegree, 0);
-  const FrameStats stats = simulation.solve(pose, StartMode::cold);
+  const FrameStats stats = solvePose(simulation, pose, StartMode::cold, smallStopping());
   expectBoundedWithoutDivergence(simulation, stats, convergedShape(scene.muscles, scene.bones, smallSettings(), pose),
                                  pretransformOf(simulation, pose));
 }
@@ -445,9 +446,9 @@ TEST(Stability, AGaitLikeSweepNeverTriggersTheDivergenceCheck) {
   MuscleSimulation simulation(scene.muscles, scene.bones, smallSettings());
   for (int frame = 0; frame <= 60; ++frame) {
     const double phase = 2 * 3.14159265358979323846 * frame / 60;
-    const FrameStats stats =
-        simulation.solve(syntheticThighPose((10 + 30 * std::sin(phase)) * kDegree, (35 - 35 * std::cos(phase)) * kDegree),
-                         StartMode::warm);
+    const Pose pose =
+        syntheticThighPose((10 + 30 * std::sin(phase)) * kDegree, (35 - 35 * std::cos(phase)) * kDegree);
+    const FrameStats stats = solvePose(simulation, pose, StartMode::warm, smallStopping());
     SCOPED_TRACE("frame " + std::to_string(frame));
     expectAllFinite(simulation, stats);
     EXPECT_EQ(stats.solver.divergence_recoveries, 0);
@@ -458,9 +459,11 @@ TEST(Stability, LocalGlobalSolverStaysFiniteOnTheHardPoses) {
   const SyntheticScene scene = smallThigh();
   SimulationSettings settings = smallSettings();
   settings.solver_kind = SolverKind::local_global;
+  // The local/global solver's own default rule before stopping came with each solve: displacement, 100 iterations.
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::atDisplacement(1e-6, 100));
   MuscleSimulation simulation(scene.muscles, scene.bones, settings);
   for (const Pose& pose : {syntheticThighPose(90 * kDegree, 0), syntheticThighPose(110 * kDegree, 130 * kDegree)}) {
-    const FrameStats stats = simulation.solve(pose, StartMode::warm);
+    const FrameStats stats = solvePose(simulation, pose, StartMode::warm, stopping);
     expectAllFinite(simulation, stats);
     EXPECT_FALSE(stats.solver.diverged);
   }

@@ -128,7 +128,7 @@ TEST(SurfaceVolume, ThePipelineKeepsTheVolumeOfWhatTheUserSeesAndSaysWhatItChang
   PipelineSettings settings;
   settings.simulation.model.particles_per_fibre = 10;
   settings.simulation.model.nearest_neighbours = 8;
-  settings.simulation.verlet.max_iterations = 60;
+  const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(60));
   const Pose pose = syntheticThighPose(0.8, 1.2);
   auto run = [&](bool keep) {
     PipelineSettings s = settings;
@@ -137,7 +137,8 @@ TEST(SurfaceVolume, ThePipelineKeepsTheVolumeOfWhatTheUserSeesAndSaysWhatItChang
     std::vector<MuscleDescription> descriptions;
     for (const Muscle& muscle : scene.muscles) descriptions.push_back({muscle.name, "", "", "pelvis", "tibia", {}, {}});
     DeformationPipeline pipeline(std::move(descriptions), std::move(scene.muscles), std::move(scene.bones), s);
-    const FrameResult& frame = pipeline.solve(pose, StartMode::cold, true, true);
+    const FrameResult& frame =
+        pipeline.solve(boneTransformsOf(pipeline.bones(), pose), StartMode::cold, stopping, true, true);
     EXPECT_TRUE(frame.has_metrics);
     return std::make_pair(frame.metrics, frame.volume_corrections);
   };

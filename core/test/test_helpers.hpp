@@ -1,8 +1,10 @@
 // Fixtures and checks shared by the core tests.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
+#include "muscle_deformation/core/base/bone_transforms.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
+#include "muscle_deformation/core/pipeline/simulation_settings.hpp"
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 
 #include <gtest/gtest.h>
@@ -29,14 +31,18 @@ inline TriangleMesh unitCube() {
   return mesh;
 }
 
-// Block-descent settings (also Newton-Krylov's energy) that run until the force residual falls below `tolerance`,
-// at most `max_iterations` iterations.
-inline BlockDescentSettings converging(int max_iterations, double tolerance) {
-  BlockDescentSettings settings;
-  settings.stopping_rule = StoppingRule::force_residual;
-  settings.max_iterations = max_iterations;
-  settings.residual_tolerance = tolerance;
-  return settings;
+// Stopping for block descent and Newton-Krylov: until the force residual falls below `tolerance`, at most
+// `max_iterations` iterations.
+inline StoppingSettings converging(int max_iterations, double tolerance) {
+  return StoppingSettings::atResidual(tolerance, max_iterations);
+}
+
+// One pose solved by a simulation (the pipeline's MuscleSimulation, which takes bone transforms): the pose's bone
+// transforms, then the solve with `stopping`.
+template <typename Simulation>
+FrameStats solvePose(Simulation& simulation, const Pose& pose, StartMode start, const FrameStopping& stopping,
+                     double frame_interval_s = kNominalFrameIntervalS) {
+  return simulation.solve(boneTransformsOf(simulation.bones(), pose), start, stopping, frame_interval_s);
 }
 
 // A state at `positions` with zero velocity.

@@ -90,6 +90,85 @@ JointValues jointValuesFromMessage(const sensor_msgs::JointState& joint_state) {
   return values;
 }
 
+std::string jointStateProblem(const sensor_msgs::JointState& joint_state, bool& duplicate) {
+  duplicate = false;
+  for (std::size_t j = 0; j < joint_state.position.size(); ++j) {
+    if (std::isfinite(joint_state.position[j])) continue;
+    const std::string joint = j < joint_state.name.size() ? joint_state.name[j] : "#" + std::to_string(j);
+    return "joint '" + joint + "' is " + std::to_string(joint_state.position[j]);
+  }
+  std::set<std::string> seen;
+  for (const std::string& name : joint_state.name) {
+    if (seen.insert(name).second) continue;
+    duplicate = true;
+    return "joint '" + name + "' is given twice";
+  }
+  return {};
+}
+
+std::string jointLimitWarnings(const Skeleton& skeleton, const sensor_msgs::JointState& joint_state) {
+  JointValues values;
+  for (std::size_t j = 0; j < joint_state.name.size() && j < joint_state.position.size(); ++j)
+    if (skeleton.joint(joint_state.name[j])) values[joint_state.name[j]] = joint_state.position[j];
+  std::vector<std::string> warnings;
+  try {
+    skeleton.linkPoses(values, &warnings);
+  } catch (const std::exception&) {
+    return {};  // nothing to say about limits; the pose itself comes through tf
+  }
+  std::string text;
+  for (const std::string& warning : warnings) text += (text.empty() ? "" : "; ") + warning;
+  return text;
+}
+
+SinglePoseRequest singlePoseRequestFromMessage(const muscle_deformation::DeformPose::Request& request,
+                                               const Skeleton& skeleton, const std::string& fixed_frame,
+                                               std::string& frame_id) {
+  SinglePoseRequest single;
+  single.muscles = request.muscles;
+  single.warm_start = request.warm_start;
+  single.max_iterations = request.max_iterations;
+  single.displacement_tolerance_m = request.displacement_tolerance_m;
+  single.time_budget_ms = request.time_budget_ms;
+  if (!request.joint_state.name.empty()) {
+    const JointValues values = jointValuesFromMessage(request.joint_state);
+    for (const auto& [name, value] : values) {
+      (void)value;
+      if (!skeleton.joint(name)) throw std::invalid_argument("joint '" + name + "' is not a joint of the URDF");
+    }
+    single.link_poses = skeleton.linkPoses(values, &single.warnings);
+    // Express the links in the fixed frame when it is a link of the skeleton (as tf would), else in the root.
+    const auto fixed = single.link_poses.find(fixed_frame);
+    frame_id = fixed == single.link_poses.end() ? skeleton.rootLink() : fixed_frame;
+    if (fixed != single.link_poses.end()) {
+      const Eigen::Isometry3d root_to_fixed = fixed->second.inverse();
+      for (auto& [name, pose] : single.link_poses) pose = root_to_fixed * pose;
+    }
+    return single;
+  }
+  if (request.bone_poses.empty())
+    throw std::invalid_argument(
+        "the request has no pose: give joint_state (names and positions) or bone_poses (link poses)");
+  frame_id = fixed_frame;
+  for (std::size_t i = 0; i < request.bone_poses.size(); ++i) {
+    const geometry_msgs::TransformStamped& bone = request.bone_poses[i];
+    const std::string what = "bone_poses[" + std::to_string(i) + "] ('" + bone.child_frame_id + "')";
+    if (!bone.header.frame_id.empty() && bone.header.frame_id != fixed_frame)
+      throw std::invalid_argument(what + " is given in frame '" + bone.header.frame_id +
+                                  "'; give bone poses in the node's fixed frame '" + fixed_frame + "'");
+    if (!skeleton.link(bone.child_frame_id))
+      throw std::invalid_argument(what + ": child_frame_id is not a link of the URDF");
+    double quaternion_length = 1;
+    if (!single.link_poses.emplace(bone.child_frame_id, isometryFromMessage(bone.transform, what, &quaternion_length))
+             .second)
+      throw std::invalid_argument(what + " is given twice");
+    if (std::abs(quaternion_length - 1.0) > kUnitQuaternionTolerance)
+      single.warnings.push_back(what + ": rotation quaternion of length " + std::to_string(quaternion_length) +
+                                " normalised");
+  }
+  return single;
+}
+
 Eigen::Isometry3d rigidTransformFromMessage(const geometry_msgs::Transform& transform, double& quaternion_length) {
   const Eigen::Quaterniond rotation(transform.rotation.w, transform.rotation.x, transform.rotation.y,
                                     transform.rotation.z);

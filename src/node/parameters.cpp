@@ -88,24 +88,24 @@ std::vector<NodeSettingSpec> buildNodeTable() {
           "service_solver", {"verlet", "local_global", "block_descent", "newton_krylov"},
           {SolverKind::verlet, SolverKind::local_global, SolverKind::block_descent, SolverKind::newton_krylov},
           "the service's solver (the streaming one is `solver`)",
-          [service](NodeSettings& s) -> SolverKind& { return service(s).solver_kind; }),
+          [service](NodeSettings& s) -> SolverKind& { return service(s).single_pose.solver_kind; }),
       entries::integer<NodeSettings>("service_lbfgs_history", "count", 0, 1000,
                                      "local_global: the service's quasi-Newton curvature pairs (0 = plain iterations)",
-                                     [service](NodeSettings& s) -> int& { return service(s).lbfgs_history; }),
+                                     [service](NodeSettings& s) -> int& { return service(s).single_pose.lbfgs_history; }),
       entries::integer<NodeSettings>("service_max_iterations", "count", 1, 1000000,
                                      "iterations per call (a request's max_iterations overrides it)",
-                                     [service](NodeSettings& s) -> int& { return service(s).max_iterations; }),
+                                     [service](NodeSettings& s) -> int& { return service(s).single_pose.max_iterations; }),
       entries::integer<NodeSettings>("service_max_queued", "count", 0, 100,
                                      "calls that may wait while one solves; further calls are refused at once",
                                      [service](NodeSettings& s) -> int& { return service(s).max_queued; }),
       entries::number<NodeSettings>(
           "service_warm_max_translation_m", "m", 0.0, 1e6,
           "a warm start continues the client's previous answer only if no bone moved further since",
-          [service](NodeSettings& s) -> double& { return service(s).warm_max_translation_m; }),
+          [service](NodeSettings& s) -> double& { return service(s).single_pose.warm_max_translation_m; }),
       entries::number<NodeSettings>(
           "service_warm_max_rotation_rad", "rad", 0.0, 7.0,
           "a warm start continues the client's previous answer only if no bone turned more since",
-          [service](NodeSettings& s) -> double& { return service(s).warm_max_rotation_rad; }),
+          [service](NodeSettings& s) -> double& { return service(s).single_pose.warm_max_rotation_rad; }),
       entries::number<NodeSettings>("max_solve_time_s", "s", 1e-3, 3600.0,
                                     "wall-time ceiling of any solve, stream or service call",
                                     [](NodeSettings& s) -> double& { return s.max_solve_time_s; }),
@@ -172,25 +172,26 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   }
 
   for (const SettingSpec& spec : coreSettingSpecs()) p.readSetting(spec, core);
-  settings.pipeline = core.pipeline;
-  settings.stream.policy = core.stream;
-  SimulationSettings& simulation = settings.pipeline.simulation;
-  const ServiceSettings& service = settings.service;
-  shareStoppingRule(simulation);
-  if (simulation.stopping.rule == StoppingRule::force_residual && !measuresForceResidual(simulation.solver_kind))
+  const SimulationSettings& simulation = core.pipeline.simulation;
+  const StoppingSettings& stopping = core.stream.stopping.sweeps;
+  if (stopping.rule == StoppingRule::force_residual && !measuresForceResidual(simulation.solver_kind))
     p.fail("stopping_rule", "force_residual is measured by the block_descent and newton_krylov solvers only (solver is " +
                                 toString(simulation.solver_kind) + ")");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
   if (simulation.solver_kind == SolverKind::local_global)
     if (const std::string problem = validate(simulation.local_global); !problem.empty()) p.fail("lbfgs_history", problem);
+  SinglePoseSettings& single_pose = settings.service.single_pose;
   LocalGlobalSettings service_local_global = simulation.local_global;
-  service_local_global.lbfgs_history = service.lbfgs_history;
-  if (service_local_global.stopping_rule == StoppingRule::force_residual)
-    service_local_global.stopping_rule = StoppingRule::iterations;  // as the service runs it (node's handler)
-  if (service.solver_kind == SolverKind::local_global)
+  service_local_global.lbfgs_history = single_pose.lbfgs_history;
+  if (single_pose.solver_kind == SolverKind::local_global)
     if (const std::string problem = validate(service_local_global); !problem.empty())
       p.fail("service_lbfgs_history", problem + " (chebyshev_rho and volume_weight apply to the service too)");
+  // The service stops as the stream's rule says where it can (a residual), else by its iteration count; "converged"
+  // is the same residual criterion for both.
+  single_pose.rule = stopping.rule == StoppingRule::force_residual ? StoppingRule::force_residual : StoppingRule::iterations;
+  single_pose.residual_tolerance = stopping.residual_tolerance;
+  settings.core = core;
   return settings;
 }
 

@@ -11,6 +11,7 @@
 
 #include <boost/function.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <mutex>
 #include <vector>
@@ -33,10 +34,20 @@ std::vector<muscle_deformation::DeformationStats> statsCopy() {
   return recorder.stats;
 }
 
-// Frames per second of sim time spanned by the stamps.
-double rateOf(const std::vector<ros::Time>& stamps) {
+// Frames per second of sim time spanned by the stamps, each pose once (a refined frame repeats the stamp of the pose it
+// refines).
+double rateOf(std::vector<ros::Time> stamps) {
+  stamps.erase(std::unique(stamps.begin(), stamps.end()), stamps.end());
   if (stamps.size() < 2) return 0;
   return static_cast<double>(stamps.size() - 1) / (stamps.back() - stamps.front()).toSec();
+}
+
+// The frames that solved a new pose (not the refinements of an unfinished one while the bag paused between poses).
+std::vector<muscle_deformation::DeformationStats> newPoses(const std::vector<muscle_deformation::DeformationStats>& all) {
+  std::vector<muscle_deformation::DeformationStats> frames;
+  for (const auto& frame : all)
+    if (!frame.refined) frames.push_back(frame);
+  return frames;
 }
 
 }  // namespace
@@ -57,7 +68,10 @@ TEST(GaitBag, EveryPoseIsSolvedOrCountedAsSkipped) {
   EXPECT_EQ(last.tf_failures, 0u) << "robot_state_publisher publishes every pose's transforms";
   // At the test's playback rate the solver keeps up: nothing is dropped.
   EXPECT_EQ(last.poses_dropped, 0u);
-  EXPECT_EQ(stats.size(), last.poses_solved) << "one ~stats message per solved frame";
+  EXPECT_EQ(newPoses(stats).size(), last.poses_solved) << "one ~stats message per solved pose";
+  // Between the bag's poses (played slowly) the node refines each unfinished frame and publishes some of the
+  // refinements: they are counted apart, never as poses.
+  EXPECT_LE(stats.size() - last.poses_solved, last.poses_refined);
 }
 
 TEST(GaitBag, NoFrameHasNonFinitePositions) {
@@ -97,7 +111,7 @@ TEST(GaitBag, SpheresStayOutOfBone) {
 }
 
 TEST(GaitBag, FramesFollowTheBagInOrderAndStartWarmAfterTheFirst) {
-  const auto stats = statsCopy();
+  const auto stats = newPoses(statsCopy());
   ASSERT_GE(stats.size(), 2u);
   EXPECT_FALSE(stats.front().warm_started);
   for (std::size_t i = 1; i < stats.size(); ++i) {
@@ -108,7 +122,7 @@ TEST(GaitBag, FramesFollowTheBagInOrderAndStartWarmAfterTheFirst) {
 
 TEST(GaitBag, OutputsArriveAtTheBagRate) {
   std::lock_guard<std::mutex> lock(recorder.mutex);
-  const std::size_t solved = recorder.stats.size();
+  const std::size_t solved = recorder.stats.size();  // new poses and published refinements alike
   for (const auto* stamps : {&recorder.fibre_stamps, &recorder.particle_stamps, &recorder.surface_stamps,
                              &recorder.surface_marker_stamps}) {
     EXPECT_EQ(stamps->size(), solved);

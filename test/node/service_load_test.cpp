@@ -62,6 +62,18 @@ double statsRate(double seconds) {
 
 bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 
+// The node's residual_tolerance (config/muscle_deformation.yaml): block descent's frame has converged below it.
+constexpr double kResidualTolerance = 1e-3;
+
+// "converged" is the residual criterion, whatever stopped the solve, and the reply says which side of it the frame
+// ended on.
+void expectConvergedByTheResidual(const md::DeformPose::Response& r) {
+  ASSERT_TRUE(r.stats.has_residual) << r.message;
+  EXPECT_EQ(r.stats.converged, r.stats.force_residual < kResidualTolerance) << r.message;
+  EXPECT_TRUE(contains(r.message, r.stats.converged ? "; converged: force residual" : "; not converged: force residual"))
+      << r.message;
+}
+
 }  // namespace
 
 TEST(ServiceLoad, ABurstOfCallsKeepsTheStreamAndDiagnosticsGoingAndRefusesCallsBeyondTheQueue) {
@@ -108,7 +120,7 @@ TEST(ServiceLoad, ABurstOfCallsKeepsTheStreamAndDiagnosticsGoingAndRefusesCallsB
     if (r.success) {
       ++solved;
       EXPECT_TRUE(r.stats.time_limit_reached) << r.message;
-      EXPECT_FALSE(r.stats.converged) << "stopped by its time budget, not converged: " << r.message;
+      expectConvergedByTheResidual(r);
       EXPECT_LE(r.stats.solve_ms, kBudgetMs + 250) << r.message;
       EXPECT_TRUE(contains(r.message, "time_budget_ms")) << r.message;
     } else {
@@ -132,7 +144,7 @@ TEST(ServiceLoad, EveryLimitOfARequestIsHonouredAndTheNodeCeilingBoundsTheRest) 
   const md::DeformPose::Response bounded = call(unlimited, &seconds);
   ASSERT_TRUE(bounded.success) << bounded.message;
   EXPECT_TRUE(bounded.stats.time_limit_reached);
-  EXPECT_FALSE(bounded.stats.converged);
+  expectConvergedByTheResidual(bounded);
   EXPECT_TRUE(contains(bounded.message, "max_solve_time_s")) << bounded.message;
   EXPECT_LT(seconds, max_solve_time_s + 3.0) << bounded.message;
 
@@ -145,17 +157,19 @@ TEST(ServiceLoad, EveryLimitOfARequestIsHonouredAndTheNodeCeilingBoundsTheRest) 
   const md::DeformPose::Response settled = call(tolerant);
   std::printf("displacement tolerance 1e-5 m, one muscle: %s\n", settled.message.c_str());
   ASSERT_TRUE(settled.success) << settled.message;
-  EXPECT_TRUE(settled.stats.converged) << settled.message;
+  EXPECT_TRUE(contains(settled.message, "the mean step fell below 1e-05 m")) << settled.message;
+  expectConvergedByTheResidual(settled);
   EXPECT_LT(settled.stats.iterations, 1000000);
   EXPECT_FALSE(settled.stats.time_limit_reached) << settled.message;
 
-  // A plain iteration count is not convergence.
+  // A plain iteration count is not convergence: five cold sweeps leave the residual far above the tolerance.
   md::DeformPose::Request counted = poseRequest(0.4);
   counted.max_iterations = 5;
   const md::DeformPose::Response five = call(counted);
   ASSERT_TRUE(five.success) << five.message;
   EXPECT_EQ(five.stats.iterations, 5);
-  EXPECT_FALSE(five.stats.converged);
+  EXPECT_FALSE(five.stats.converged) << five.message;
+  expectConvergedByTheResidual(five);
 }
 
 TEST(ServiceLoad, WarmStartsContinueOnlyTheSameCallersNearbyAnswer) {

@@ -5,6 +5,8 @@
 
 #include "muscle_deformation/core/scene/scene.hpp"
 
+#include <muscle_deformation/DeformationStats.h>
+
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 #include <rosgraph_msgs/Log.h>
@@ -32,9 +34,10 @@ struct Fixture {
   std::unique_ptr<md::node_testing::DiagnosticsWatcher> diagnostics;
   ros::Publisher joint_states;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf;
-  ros::Subscriber particles_subscriber, rosout_subscriber;
+  ros::Subscriber particles_subscriber, rosout_subscriber, stats_subscriber;
   std::mutex mutex;
   std::vector<sensor_msgs::PointCloud2> clouds;
+  std::vector<muscle_deformation::DeformationStats> stats;
   std::vector<std::string> node_log;
   md::Skeleton skeleton;
   std::vector<std::string> bone_links;  // links with collision meshes, in URDF order (the node's bone indices)
@@ -56,6 +59,74 @@ void publishAt30Hz(int count, const std::function<ros::Time()>& stamp_of, double
     publishJointState(stamp_of(), hip_flexion);
     ros::WallDuration(1.0 / 30.0).sleep();
   }
+}
+
+// The bones' links in the pelvis frame, for joint values (URDF forward kinematics), as a robot_state_publisher would
+// give them, but straight from the pelvis to each bone.
+std::map<std::string, Eigen::Isometry3d> bonesInPelvis(const md::JointValues& joints) {
+  const std::map<std::string, Eigen::Isometry3d> root = fixture->skeleton.linkPoses(joints);
+  std::map<std::string, Eigen::Isometry3d> bones;
+  for (const std::string& link : fixture->bone_links) bones[link] = root.at("pelvis").inverse() * root.at(link);
+  return bones;
+}
+
+void sendTransform(const ros::Time& stamp, const std::string& parent, const std::string& child,
+                   const Eigen::Isometry3d& pose) {
+  geometry_msgs::TransformStamped transform = tf2::eigenToTransform(pose);
+  transform.header.stamp = stamp;
+  transform.header.frame_id = parent;
+  transform.child_frame_id = child;
+  fixture->tf->sendTransform(transform);
+}
+
+// One pose of the stream: every bone's transform at `stamp` for this hip flexion, then its joint state.
+void publishPose(const ros::Time& stamp, double hip_flexion) {
+  for (const auto& [link, pose] : bonesInPelvis({{"hip_flexion_r", hip_flexion}}))
+    if (link != "pelvis") sendTransform(stamp, "pelvis", link, pose);
+  ros::WallDuration(0.01).sleep();
+  publishJointState(stamp, hip_flexion);
+}
+
+// The particles of the frame that solved the pose at `stamp`, among the clouds after the first `before` (refined frames
+// of an earlier pose may arrive in between: they carry that pose's stamp); an empty cloud if none came within 10 s.
+sensor_msgs::PointCloud2 cloudAt(const ros::Time& stamp, std::size_t before) {
+  sensor_msgs::PointCloud2 found;
+  const bool arrived = waitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(fixture->mutex);
+        for (std::size_t i = before; i < fixture->clouds.size(); ++i)
+          if (fixture->clouds[i].header.stamp == stamp) {
+            found = fixture->clouds[i];
+            return true;
+          }
+        return false;
+      },
+      10.0);
+  EXPECT_TRUE(arrived) << "no particles for the pose at " << stamp;
+  return found;
+}
+
+// The stats of the frame that solved the pose at `stamp` (not a refinement), after the first `before`.
+muscle_deformation::DeformationStats statsAt(const ros::Time& stamp, std::size_t before) {
+  muscle_deformation::DeformationStats found;
+  const bool arrived = waitFor(
+      [&] {
+        std::lock_guard<std::mutex> lock(fixture->mutex);
+        for (std::size_t i = before; i < fixture->stats.size(); ++i)
+          if (fixture->stats[i].header.stamp == stamp && !fixture->stats[i].refined) {
+            found = fixture->stats[i];
+            return true;
+          }
+        return false;
+      },
+      10.0);
+  EXPECT_TRUE(arrived) << "no ~stats for the pose at " << stamp;
+  return found;
+}
+
+std::size_t statsCount() {
+  std::lock_guard<std::mutex> lock(fixture->mutex);
+  return fixture->stats.size();
 }
 
 // Waits for the node's next diagnostics update after the causes of the last poses have been counted.
@@ -132,14 +203,7 @@ TEST(StreamInputs, NonUnitQuaternionsMoveTheBonesRigidlyAndJointsOutsideTheirLim
     publishBones(stamp, angle, length);
     ros::WallDuration(0.05).sleep();
     publishJointState(stamp, hip_flexion);
-    EXPECT_TRUE(waitFor(
-        [&] {
-          std::lock_guard<std::mutex> lock(fixture->mutex);
-          return fixture->clouds.size() > before;
-        },
-        10.0));
-    std::lock_guard<std::mutex> lock(fixture->mutex);
-    return fixture->clouds.back();
+    return cloudAt(stamp, before);
   };
   const auto femurParticles = [](const sensor_msgs::PointCloud2& cloud) {
     const int femur = static_cast<int>(std::find(fixture->bone_links.begin(), fixture->bone_links.end(), "femur_r") -
@@ -179,6 +243,151 @@ TEST(StreamInputs, NonUnitQuaternionsMoveTheBonesRigidlyAndJointsOutsideTheirLim
       << "the node warns about a joint value outside its limits";
 }
 
+TEST(StreamInputs, AJointNamedTwiceIsDroppedCountedAndNamedAndTheStreamGoesOn) {
+  settle();
+  const double duplicates_before = total("Duplicate joints (total)");
+  for (int i = 0; i < 5; ++i) {
+    sensor_msgs::JointState message;
+    message.header.stamp = ros::Time::now();
+    message.name = {"hip_flexion_r", "knee_angle_r", "hip_flexion_r"};
+    message.position = {0.1, -0.2, 0.3};
+    fixture->joint_states.publish(message);
+    ros::WallDuration(1.0 / 30.0).sleep();
+  }
+  settle();
+  EXPECT_EQ(total("Duplicate joints (total)") - duplicates_before, 5) << fixture->diagnostics->summary();
+  {
+    std::lock_guard<std::mutex> lock(fixture->mutex);
+    bool named = false;
+    for (const std::string& line : fixture->node_log)
+      named = named || line.find("'hip_flexion_r' is given twice") != std::string::npos;
+    EXPECT_TRUE(named) << "a log line names the joint given twice";
+  }
+  // The stream goes on with the next good pose.
+  const std::size_t before = statsCount();
+  const ros::Time good = ros::Time::now();
+  publishPose(good, 0.05);
+  EXPECT_EQ(statsAt(good, before).header.stamp, good) << "the next good pose was not solved";
+}
+
+TEST(StreamInputs, AfterStampsAheadOfTheClockPosesStampedOnTimeAreSolvedAgain) {
+  settle();
+  const double future_before = total("Future stamps (total)");
+  // A publisher 100 s ahead, with its transforms (as robot_state_publisher sends them for every joint state): tf's
+  // buffer then holds data 100 s newer than anything on time, and would drop every on-time transform after it.
+  for (int i = 0; i < 5; ++i) {
+    publishPose(ros::Time::now() + ros::Duration(100.0), 0.1);
+    ros::WallDuration(1.0 / 30.0).sleep();
+  }
+  settle();
+  EXPECT_EQ(total("Future stamps (total)") - future_before, 5) << fixture->diagnostics->summary();
+  const double tf_before = total("tf failures (total)");
+  const std::size_t stats_before = statsCount();
+  std::vector<ros::Time> on_time;
+  for (int i = 0; i < 15; ++i) {
+    on_time.push_back(ros::Time::now());
+    publishPose(on_time.back(), 0.1 + 0.01 * i);
+    ros::WallDuration(1.0 / 15.0).sleep();
+  }
+  settle();
+  int solved = 0;
+  {
+    std::lock_guard<std::mutex> lock(fixture->mutex);
+    for (std::size_t i = stats_before; i < fixture->stats.size(); ++i)
+      solved += !fixture->stats[i].refined &&
+                std::find(on_time.begin(), on_time.end(), fixture->stats[i].header.stamp) != on_time.end();
+  }
+  EXPECT_GE(solved, 13) << "poses stamped on time were not solved again";
+  // The first on-time pose finds no transforms (tf dropped them) and the buffer is cleared; none after it may fail.
+  EXPECT_LE(total("tf failures (total)") - tf_before, 1) << fixture->diagnostics->summary();
+}
+
+TEST(StreamInputs, ARotationOffUnitLengthIsNormalisedBeforeTheSkeletonsChainIsComposed) {
+  // The URDF's chain as robot_state_publisher sends it (every joint's parent -> child transform), with the femur's
+  // joint turned by 0.4 rad about z and its quaternion scaled to |q|^2 = 1.009. tf2 composes the chain with the
+  // quaternion as it is, which stretches every translation below the femur by |q|^2: the node must normalise each
+  // joint before composing, so that the tibia's particles move rigidly with the femur.
+  const auto publishChain = [](const ros::Time& stamp, double angle, double length) {
+    const std::map<std::string, Eigen::Isometry3d> root = fixture->skeleton.linkPoses({});
+    for (const md::SkeletonJoint& joint : fixture->skeleton.joints()) {
+      Eigen::Isometry3d edge = root.at(joint.parent_link).inverse() * root.at(joint.child_link);
+      geometry_msgs::TransformStamped transform;
+      if (joint.child_link == "femur_r") edge.linear() = Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()) * edge.linear();
+      transform = tf2::eigenToTransform(edge);
+      if (joint.child_link == "femur_r") {
+        transform.transform.rotation.x *= length;
+        transform.transform.rotation.y *= length;
+        transform.transform.rotation.z *= length;
+        transform.transform.rotation.w *= length;
+      }
+      transform.header.stamp = stamp;
+      transform.header.frame_id = joint.parent_link;
+      transform.child_frame_id = joint.child_link;
+      fixture->tf->sendTransform(transform);
+    }
+  };
+  const auto solvedCloud = [&](double angle, double length) {
+    const std::size_t before = [] {
+      std::lock_guard<std::mutex> lock(fixture->mutex);
+      return fixture->clouds.size();
+    }();
+    const ros::Time stamp = ros::Time::now();
+    publishChain(stamp, angle, length);
+    ros::WallDuration(0.05).sleep();
+    publishJointState(stamp, 0.0);
+    return cloudAt(stamp, before);
+  };
+  const auto tibiaParticles = [](const sensor_msgs::PointCloud2& cloud) {
+    const int tibia = static_cast<int>(std::find(fixture->bone_links.begin(), fixture->bone_links.end(), "tibia_r") -
+                                       fixture->bone_links.begin());
+    std::vector<Eigen::Vector3d> points;
+    sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
+    sensor_msgs::PointCloud2ConstIterator<std::int32_t> bone(cloud, "bone");
+    for (; x != x.end(); ++x, ++y, ++z, ++bone)
+      if (*bone == tibia) points.emplace_back(*x, *y, *z);
+    return points;
+  };
+  ros::WallDuration(0.2).sleep();
+  const std::vector<Eigen::Vector3d> rest = tibiaParticles(solvedCloud(0.0, 1.0));
+  ros::WallDuration(0.1).sleep();
+  const std::vector<Eigen::Vector3d> turned = tibiaParticles(solvedCloud(0.4, 1.0045));
+  ASSERT_EQ(rest.size(), turned.size());
+  ASSERT_GE(rest.size(), 2u) << "gracilis has particles fixed to the tibia";
+  // The femur and everything below it turned by 0.4 rad about the pelvis z axis through the femur's origin.
+  const Eigen::Vector3d hip = fixture->rest_in_pelvis.at("femur_r").translation();
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  double worst = 0;
+  for (std::size_t i = 0; i < rest.size(); ++i)
+    worst = std::max(worst, (turned[i] - (hip + turn * (rest[i] - hip))).norm());
+  // Composed with the quaternion unnormalised the tibia's particles lie about 4 mm off.
+  EXPECT_LT(worst, 1e-5) << "the particles fixed to the tibia did not move rigidly with the femur";
+}
+
+TEST(StreamInputs, AJumpAfterAHoldStartsColdAndAHeldUnfinishedFrameIsRefined) {
+  settle();
+  const auto lastStats = [] {
+    std::lock_guard<std::mutex> lock(fixture->mutex);
+    return fixture->stats.empty() ? muscle_deformation::DeformationStats() : fixture->stats.back();
+  };
+  // Flexed and held for half a second (the node skips the held poses as unchanged, refining the last frame).
+  ros::Time stamp = ros::Time::now();
+  for (int i = 0; i < 30; ++i) {
+    publishPose(stamp, 1.2);
+    ros::WallDuration(1.0 / 60.0).sleep();
+    stamp += ros::Duration(1.0 / 60.0);
+  }
+  ros::WallDuration(1.0).sleep();
+  const muscle_deformation::DeformationStats held = lastStats();
+  EXPECT_GT(held.poses_refined, 0u) << "the held pose's unfinished frame was not refined";
+  // Then 1.5 rad in one frame: 90 rad/s, a jump, although 1.5 rad over the half second of the hold would be 3 rad/s.
+  const std::size_t before = statsCount();
+  publishPose(stamp, -0.3);
+  const muscle_deformation::DeformationStats jump = statsAt(stamp, before);
+  ASSERT_EQ(jump.header.stamp, stamp);
+  EXPECT_FALSE(jump.warm_started) << "the jump after the hold was solved warm";
+  EXPECT_EQ(jump.resets, held.resets + 1) << "the jump after the hold was not counted as a cold restart";
+}
+
 int main(int argc, char** argv) {
   testing::InitGoogleTest(&argc, argv);
   ros::init(argc, argv, "stream_inputs_test");
@@ -205,6 +414,11 @@ int main(int argc, char** argv) {
       "/muscle_deformation/particles", 10, [&loaded](const sensor_msgs::PointCloud2::ConstPtr& cloud) {
         std::lock_guard<std::mutex> lock(loaded.mutex);
         loaded.clouds.push_back(*cloud);
+      });
+  loaded.stats_subscriber = node.subscribe<muscle_deformation::DeformationStats>(
+      "/muscle_deformation/stats", 1000, [&loaded](const muscle_deformation::DeformationStats::ConstPtr& stats) {
+        std::lock_guard<std::mutex> lock(loaded.mutex);
+        loaded.stats.push_back(*stats);
       });
   loaded.rosout_subscriber = node.subscribe<rosgraph_msgs::Log>(
       "/rosout", 1000, [&loaded](const rosgraph_msgs::Log::ConstPtr& log) {

@@ -296,11 +296,12 @@ TEST(Conversions, APipelinesFrameCarriesEverythingItsMessagesNeed) {
   md::PipelineSettings settings;
   settings.simulation.model.particles_per_fibre = 6;
   settings.simulation.model.nearest_neighbours = 6;
-  settings.simulation.verlet.max_iterations = 5;
   std::vector<md::MuscleDescription> descriptions(2);
   for (std::size_t m = 0; m < 2; ++m) descriptions[m].name = scene.muscles[m].name;
   md::DeformationPipeline pipeline(descriptions, scene.muscles, scene.bones, settings);
-  const md::FrameResult& frame = pipeline.solve(md::syntheticThighPose(0.3, 0.2), md::StartMode::cold, true, false);
+  const md::FrameResult& frame =
+      pipeline.solve(md::boneTransformsOf(pipeline.bones(), md::syntheticThighPose(0.3, 0.2)), md::StartMode::cold,
+                     md::FrameStopping::of(md::StoppingSettings::afterIterations(5)), true, false);
   ASSERT_TRUE(frame.has_surfaces);
   std_msgs::Header header;
   header.frame_id = "pelvis";

@@ -71,8 +71,8 @@ TEST(Parameters, TheDocumentedFileHoldsTheDefaultsAndNamesEveryParameterTheNodeR
 
   // "Every value below is the node's default": the file changes nothing. The core's settings through their table
   // (pipeline, solvers, collision, surfaces, stream policy), the node's own ones by name.
-  md::CoreSettings core_from_file{from_file.pipeline, from_file.stream.policy};
-  md::CoreSettings core_defaults{defaults.pipeline, defaults.stream.policy};
+  const md::CoreSettings& core_from_file = from_file.core;
+  const md::CoreSettings& core_defaults = defaults.core;
   for (const md::SettingSpec& spec : md::coreSettingSpecs()) {
     EXPECT_TRUE(spec.get(core_from_file) == spec.get(core_defaults)) << spec.name;
     EXPECT_TRUE(documented.count(spec.name)) << spec.name << " is in the settings table but not documented";
@@ -99,8 +99,8 @@ TEST(Parameters, TheDocumentedFileHoldsTheDefaultsAndNamesEveryParameterTheNodeR
 #define EXPECT_SAME(field) EXPECT_EQ(from_file.field, defaults.field) << #field
   EXPECT_SAME(scene_path);
   EXPECT_SAME(muscles);
-  EXPECT_SAME(pipeline.simulation.local_global.stopping_rule);   // shared from the stream's stopping parameters
-  EXPECT_SAME(pipeline.simulation.local_global.max_iterations);
+  EXPECT_SAME(service.single_pose.rule);   // derived from the stream's stopping parameters
+  EXPECT_SAME(service.single_pose.residual_tolerance);
 #undef EXPECT_SAME
 }
 
@@ -109,7 +109,7 @@ TEST(Parameters, TheBenchmarksReadTheDocumentedFileAsTheNodeDoes) {
   md::readSettingsYaml(kPackageRoot + "/config/muscle_deformation.yaml", from_yaml);
   const node::NodeSettings node_settings =
       node::readNodeSettings(node::MapParameters(documentedParameters()), kPackageRoot);
-  const md::CoreSettings from_node{node_settings.pipeline, node_settings.stream.policy};
+  const md::CoreSettings& from_node = node_settings.core;
   for (const md::SettingSpec& spec : md::coreSettingSpecs())
     EXPECT_TRUE(spec.get(from_yaml) == spec.get(from_node)) << spec.name;
 }
@@ -125,16 +125,15 @@ TEST(Parameters, ValuesOfEveryKindAreReadIntoTheSettings) {
                            {"muscles", names({"thigh13", "iliacus"})},
                            {"surface_alpha", XmlRpc::XmlRpcValue(0.25)}}),
       kPackageRoot);
-  EXPECT_EQ(settings.pipeline.simulation.model.particles_per_fibre, 12);
-  EXPECT_EQ(settings.pipeline.simulation.stopping.max_iterations, 40);
-  EXPECT_EQ(settings.pipeline.simulation.model.attachment_distance_m, 0.0);
-  EXPECT_FALSE(settings.pipeline.simulation.model.fix_fibre_ends);
-  EXPECT_EQ(settings.pipeline.simulation.solver_kind, md::SolverKind::local_global);
+  EXPECT_EQ(settings.core.pipeline.simulation.model.particles_per_fibre, 12);
+  EXPECT_EQ(settings.core.stream.stopping.sweeps.max_iterations, 40);
+  EXPECT_EQ(settings.core.pipeline.simulation.model.attachment_distance_m, 0.0);
+  EXPECT_FALSE(settings.core.pipeline.simulation.model.fix_fibre_ends);
+  EXPECT_EQ(settings.core.pipeline.simulation.solver_kind, md::SolverKind::local_global);
   EXPECT_EQ(settings.muscles, (std::vector<std::string>{"thigh13", "iliacus"}));
   EXPECT_FLOAT_EQ(settings.stream.surface_alpha, 0.25f);
-  // One stopping rule drives whichever solver runs.
-  EXPECT_EQ(settings.pipeline.simulation.local_global.stopping_rule, md::StoppingRule::displacement);
-  EXPECT_EQ(settings.pipeline.simulation.local_global.max_iterations, 40);
+  // One stopping rule per frame, whichever solver runs.
+  EXPECT_EQ(settings.core.stream.stopping.sweeps.rule, md::StoppingRule::displacement);
 
   const node::NodeSettings single =
       node::readNodeSettings(node::MapParameters({{"muscles", XmlRpc::XmlRpcValue(std::string("thigh13"))}}), kPackageRoot);

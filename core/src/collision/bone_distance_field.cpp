@@ -1,6 +1,6 @@
 #include "muscle_deformation/core/collision/bone_distance_field.hpp"
 
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>

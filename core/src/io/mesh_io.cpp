@@ -1,5 +1,6 @@
 // Loaders for STL, PLY, legacy VTK and VTK XML PolyData (.vtp) through VTK's readers, Wavefront OBJ through a small
-// reader of its own, and two writers through VTK's.
+// reader of its own, and two writers through VTK's (the polyline writer's fixed-decimal ASCII form excepted: VTK
+// writes ASCII doubles with 11 significant digits).
 //
 // VTK's readers report a problem as a message, not an exception, and VTK 9.1's (Debian 12) go on after some of them:
 // a legacy file with a coordinate missing loads with a wrong point, and a legacy cell list that ends early or a PLY
@@ -43,11 +44,13 @@
 #include <charconv>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <mutex>
 #include <sstream>
+#include <stdexcept>
 #include <string_view>
 #include <thread>
 #include <unordered_map>
@@ -732,6 +735,41 @@ void write(const std::string& path, vtkWriter* writer) {
   }
 }
 
+// savePolylinesVtk's ASCII form (lines already checked).
+void writePolylinesAscii(const std::string& path, const std::vector<Polyline>& lines, const std::string& title,
+                         int decimals) {
+  std::size_t points = 0;
+  for (const Polyline& line : lines) points += static_cast<std::size_t>(line.cols());
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error(path + ": cannot open for writing: " + std::strerror(errno));
+  out << "# vtk DataFile Version 3.0\n" << title << "\nASCII\nDATASET POLYDATA\n";
+  out << "POINTS " << points << " double\n";
+  // Fixed decimals with trailing zeros dropped: short, exact to the chosen precision, readable by any VTK reader.
+  auto number = [decimals](double value) {
+    char buffer[64];
+    std::snprintf(buffer, sizeof buffer, "%.*f", decimals, value);
+    std::string text = buffer;
+    text.erase(text.find_last_not_of('0') + 1);
+    if (text.back() == '.') text.pop_back();
+    if (text == "-0") text = "0";
+    return text;
+  };
+  for (const Polyline& line : lines) {
+    for (Eigen::Index i = 0; i < line.cols(); ++i) {
+      out << number(line(0, i)) << ' ' << number(line(1, i)) << ' ' << number(line(2, i)) << '\n';
+    }
+  }
+  out << "LINES " << lines.size() << ' ' << (points + lines.size()) << '\n';
+  std::size_t next = 0;
+  for (const Polyline& line : lines) {
+    out << line.cols();
+    for (Eigen::Index i = 0; i < line.cols(); ++i) out << ' ' << next++;
+    out << '\n';
+  }
+  out.close();
+  if (!out) throw std::runtime_error(path + ": write failed");
+}
+
 }  // namespace
 
 TriangleMesh loadTriangleMesh(const std::string& path, double scale_to_metres) {
@@ -769,7 +807,13 @@ std::vector<Polyline> loadPolylines(const std::string& path, double scale_to_met
 }
 
 // Writers throw std::runtime_error naming the file: they are not loaders.
-void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines) {
+void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines, const std::string& title,
+                      int decimals) {
+  if (decimals < 0 || decimals > 17) throw std::invalid_argument("savePolylinesVtk: decimals must be in 0..17");
+  if (title.size() > kLegacyVtkTitleLimit || title.find('\n') != std::string::npos) {
+    throw std::invalid_argument("savePolylinesVtk: the title must be one line of at most " +
+                                std::to_string(kLegacyVtkTitleLimit) + " characters");
+  }
   vtkIdType point_count = 0;
   for (std::size_t i = 0; i < lines.size(); ++i) {
     if (lines[i].cols() < 2) {
@@ -778,6 +822,7 @@ void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& line
     if (!lines[i].allFinite()) throw std::runtime_error(path + ": polyline " + std::to_string(i) + " has non-finite points");
     point_count += lines[i].cols();
   }
+  if (decimals > 0) return writePolylinesAscii(path, lines, title, decimals);
   vtkNew<vtkPoints> points;
   points->SetDataTypeToDouble();
   points->SetNumberOfPoints(point_count);
@@ -796,7 +841,7 @@ void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& line
   vtkNew<vtkPolyDataWriter> writer;
   writer->SetFileName(path.c_str());
   writer->SetInputData(data);
-  writer->SetHeader("muscle_deformation polylines (metres)");
+  writer->SetHeader(title.c_str());
   // Binary: VTK 9.1 writes ASCII doubles with 11 significant digits, which would not read back exactly.
   writer->SetFileTypeToBinary();
   writer->SetFileVersion(vtkDataWriter::VTK_LEGACY_READER_VERSION_4_2);  // readable by VTK before 9 too

@@ -2,7 +2,7 @@
 // (surface_repair.cpp). Private to the core's sources: no public header includes VTK.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <vtkSmartPointer.h>
 

@@ -1,6 +1,6 @@
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
-#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/base/point_index.hpp"
 
 #include <Eigen/Eigenvalues>
 

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
+#include "muscle_simulation.hpp"
+
 #include <chrono>
 #include <sstream>
 
@@ -16,10 +18,12 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
                                          std::vector<Bone> bones, const PipelineSettings& settings,
                                          const BoneFields& bone_fields)
     : descriptions_(std::move(descriptions)), settings_(settings) {
-  simulation_ =
-      std::make_unique<MuscleSimulation>(std::move(muscles), std::move(bones), settings_.simulation, bone_fields);
+  simulation_ = std::make_unique<MuscleSimulation>(std::move(muscles), std::move(bones), settings_.simulation,
+                                                   settings_.threads, bone_fields);
   const MuscleSimulation& sim = *simulation_;
-  if (settings_.skin_surfaces || settings_.measure_fidelity) {
+  // The volume term of the frame energy reads each muscle's skin, so it needs the skinning whatever else is asked.
+  const bool keep_volume = settings_.simulation.block_descent.volume_stiffness > 0;
+  if (settings_.skin_surfaces || settings_.measure_fidelity || keep_volume) {
     const auto start = std::chrono::steady_clock::now();
     try {
       skinning_ = std::make_unique<SurfaceSkinning>(sim.system(), sim.muscles(), settings_.skinning);
@@ -27,6 +31,7 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
       skinning_problem_ = e.what();
     }
     skinning_setup_ms_ = millisecondsSince(start);
+    if (skinning_ && keep_volume) simulation_->keepVolume(*skinning_);
   } else {
     skinning_problem_ = "turned off (surfaces and surface_metrics are false)";
   }
@@ -64,15 +69,38 @@ DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descript
   frame_.view(sim.system(), sim.state().position, descriptions_, sim.bones(), skinning_.get());
 }
 
-const FrameResult& DeformationPipeline::solve(const Pose& pose, StartMode start, bool want_surfaces,
-                                              bool want_metrics, double frame_interval_s) {
-  return solve(boneTransformsOf(simulation_->bones(), pose), start, want_surfaces, want_metrics, frame_interval_s);
+DeformationPipeline::~DeformationPipeline() = default;
+
+void DeformationPipeline::reset() { simulation_->reset(); }
+void DeformationPipeline::continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position) {
+  simulation_->continueFrom(transforms, position);
+}
+const MassSpringSystem& DeformationPipeline::system() const { return simulation_->system(); }
+const ParticleState& DeformationPipeline::state() const { return simulation_->state(); }
+const BoneTransforms& DeformationPipeline::boneTransforms() const { return simulation_->boneTransforms(); }
+const std::vector<Muscle>& DeformationPipeline::muscles() const { return simulation_->muscles(); }
+const std::vector<Bone>& DeformationPipeline::bones() const { return simulation_->bones(); }
+const ModelBuildReport& DeformationPipeline::buildReport() const { return simulation_->buildReport(); }
+const CollisionWorld* DeformationPipeline::collisionWorld() const { return simulation_->collisionWorld(); }
+const BoneFields& DeformationPipeline::boneFields() const { return simulation_->boneFields(); }
+const RestOverlapSummary& DeformationPipeline::restOverlaps() const { return simulation_->restOverlaps(); }
+
+const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start,
+                                              const FrameStopping& stopping, bool want_surfaces, bool want_metrics,
+                                              double frame_interval_s) {
+  frame_.stats = simulation_->solve(transforms, start, stopping, frame_interval_s);
+  frame_.bone_transforms = transforms;
+  return finishFrame(stopping, want_surfaces, want_metrics);
 }
 
-const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces,
-                                              bool want_metrics, double frame_interval_s) {
-  frame_.stats = simulation_->solve(transforms, start, frame_interval_s);
-  frame_.bone_transforms = transforms;
+const FrameResult& DeformationPipeline::refine(const FrameStopping& stopping, bool want_surfaces, bool want_metrics) {
+  frame_.stats = simulation_->refine(stopping);
+  frame_.bone_transforms = simulation_->boneTransforms();
+  return finishFrame(stopping, want_surfaces, want_metrics);
+}
+
+const FrameResult& DeformationPipeline::finishFrame(const FrameStopping& stopping, bool want_surfaces,
+                                                    bool want_metrics) {
   frame_.has_surfaces = false;
   frame_.has_metrics = false;
   frame_.skinning_ms = 0;
@@ -100,7 +128,7 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   }
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
-    const int threads = surfaceThreads();
+    const int threads = parallelThreads(settings_.threads, stopping.sweeps.limits);
     skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
     if (surface_contact_)
       frame_.bone_corrections = surface_contact_->apply(frame_.surfaces, frame_.bone_transforms, threads);
@@ -114,14 +142,13 @@ const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, 
   }
   if (metrics_ && want_metrics && frame_.has_surfaces) {
     const auto metrics_start = std::chrono::steady_clock::now();
-    frame_.metrics = metrics_->measure(frame_.surfaces, positions, frame_.bone_transforms, surfaceThreads());
+    frame_.metrics = metrics_->measure(frame_.surfaces, positions, frame_.bone_transforms,
+                                       parallelThreads(settings_.threads, stopping.sweeps.limits));
     frame_.metrics_ms = millisecondsSince(metrics_start);
     frame_.has_metrics = true;
   }
   return frame_;
 }
-
-int DeformationPipeline::surfaceThreads() const { return parallelThreads(simulation_->settings().block_descent); }
 
 AbsentMetric DeformationPipeline::residualAbsence() const {
   const SolverKind kind = simulation_->settings().solver_kind;

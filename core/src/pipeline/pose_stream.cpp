@@ -1,5 +1,6 @@
-#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "pose_stream.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -26,24 +27,28 @@ StreamDecision PoseStream::decide(double time_s, const BoneTransforms& transform
     decision.reason = "first pose of the stream";
     return decision;
   }
-  decision.motion = largestBoneMotion(previous_transforms_, transforms, centroids_);
+  const BoneTransforms& reference = has_received_ ? received_transforms_ : previous_transforms_;
+  const double reference_time_s = has_received_ ? received_time_s_ : previous_time_s_;
+  decision.motion = largestBoneMotion(reference, transforms, centroids_);
   decision.elapsed_s = time_s - previous_time_s_;
+  decision.since_received_s = time_s - reference_time_s;
+  const BoneMotion since_solved = largestBoneMotion(previous_transforms_, transforms, centroids_);
+  const bool moved = since_solved.translation_m > settings_.unchanged_translation_m ||
+                     since_solved.rotation_rad > settings_.unchanged_rotation_rad;
   const double moved_m = decision.motion.translation_m, turned_rad = decision.motion.rotation_rad;
-  const bool moved = moved_m > settings_.unchanged_translation_m || turned_rad > settings_.unchanged_rotation_rad;
+  const double dt = decision.since_received_s;
   std::ostringstream why;
-  if (decision.elapsed_s < 0) {
-    why << "time went back by " << -decision.elapsed_s << " s";
+  if (dt < 0 || decision.elapsed_s < 0) {
+    why << "time went back by " << -std::min(dt, decision.elapsed_s) << " s";
   } else if (!moved) {
     decision.start = StreamStart::unchanged;
     decision.reason = "no bone moved";
     return decision;
-  } else if (decision.elapsed_s == 0) {
+  } else if (dt == 0) {
     why << "the bones moved (" << moved_m << " m, " << turned_rad << " rad) with no time passing";
-  } else if (moved_m > settings_.max_bone_speed_m_per_s * decision.elapsed_s ||
-             turned_rad > settings_.max_bone_angular_speed_rad_per_s * decision.elapsed_s) {
-    why << "a bone moved " << moved_m << " m and turned " << turned_rad << " rad in " << decision.elapsed_s
-        << " s, faster than " << settings_.max_bone_speed_m_per_s << " m/s or "
-        << settings_.max_bone_angular_speed_rad_per_s << " rad/s";
+  } else if (moved_m > settings_.max_bone_speed_m_per_s * dt || turned_rad > settings_.max_bone_angular_speed_rad_per_s * dt) {
+    why << "a bone moved " << moved_m << " m and turned " << turned_rad << " rad in " << dt << " s, faster than "
+        << settings_.max_bone_speed_m_per_s << " m/s or " << settings_.max_bone_angular_speed_rad_per_s << " rad/s";
   } else {
     decision.start = settings_.warm_start ? StreamStart::warm : StreamStart::cold;
     if (!settings_.warm_start) decision.reason = "warm starts are off";
@@ -54,10 +59,17 @@ StreamDecision PoseStream::decide(double time_s, const BoneTransforms& transform
   return decision;
 }
 
+void PoseStream::received(double time_s, const BoneTransforms& transforms) {
+  has_received_ = true;
+  received_time_s_ = time_s;
+  received_transforms_ = transforms;
+}
+
 void PoseStream::accept(double time_s, const BoneTransforms& transforms) {
   has_previous_ = true;
   previous_time_s_ = time_s;
   previous_transforms_ = transforms;
+  received(time_s, transforms);
 }
 
 }  // namespace muscle_deformation

@@ -2,7 +2,7 @@
 #include "muscle_deformation/preprocessing/scene_preparation.hpp"
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
-#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/base/inside_test.hpp"
 #include "muscle_deformation/preprocessing/scene_directory.hpp"
 
 #include <algorithm>

@@ -3,7 +3,7 @@
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/io/surface_repair.hpp"
-#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
+#include "muscle_deformation/core/base/inside_test.hpp"
 
 #include <yaml-cpp/yaml.h>
 
@@ -438,6 +438,18 @@ FibreExcursion fibreExcursion(const Muscle& muscle) {
     }
   }
   return excursion;
+}
+
+std::vector<MuscleDescription> describedByName(const std::vector<Muscle>& muscles) {
+  std::vector<MuscleDescription> descriptions;
+  for (const Muscle& muscle : muscles) {
+    MuscleDescription description;
+    description.name = muscle.name;
+    description.origin_bone = muscle.origin_bone;
+    description.insertion_bone = muscle.insertion_bone;
+    descriptions.push_back(description);
+  }
+  return descriptions;
 }
 
 Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses) {

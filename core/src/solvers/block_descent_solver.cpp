@@ -54,14 +54,31 @@ struct Block {
   }
   double forceSquared() const { return fx * fx + fy * fy + fz * fz; }
   // H^-1 f by cofactors (H is symmetric positive definite: the regularisation sees to it).
-  Eigen::Vector3d step() const {
+  Eigen::Vector3d step() const { return solve(fx, fy, fz); }
+  // H^-1 r for any right-hand side r.
+  Eigen::Vector3d solve(double rx, double ry, double rz) const {
     const double c00 = hyy * hzz - hyz * hyz, c01 = hxz * hyz - hxy * hzz, c02 = hxy * hyz - hxz * hyy;
     const double c11 = hxx * hzz - hxz * hxz, c12 = hxy * hxz - hxx * hyz, c22 = hxx * hyy - hxy * hxy;
     const double inverse_det = 1.0 / (hxx * c00 + hxy * c01 + hxz * c02);
-    return inverse_det * Eigen::Vector3d(c00 * fx + c01 * fy + c02 * fz, c01 * fx + c11 * fy + c12 * fz,
-                                         c02 * fx + c12 * fy + c22 * fz);
+    return inverse_det * Eigen::Vector3d(c00 * rx + c01 * ry + c02 * rz, c01 * rx + c11 * ry + c12 * rz,
+                                         c02 * rx + c12 * ry + c22 * rz);
   }
 };
+
+// The volume term's force and curvature on particle p (volume_term.hpp): -k (V - V_rest) g and k g g^T.
+inline void addVolumeForce(const VolumeTerm& term, const std::vector<double>& volumes, const Eigen::Matrix3Xd& gradients,
+                           std::int32_t muscle, std::int32_t p, Block& block) {
+  if (!term.active() || gradients.cols() <= p) return;
+  const std::size_t m = static_cast<std::size_t>(muscle);
+  const double k = term.stiffness[m];
+  if (k <= 0) return;
+  const Eigen::Vector3d g = gradients.col(p);
+  const double pressure = k * (volumes[m] - term.rest_volume_m3[m]);
+  block.fx -= pressure * g.x();
+  block.fy -= pressure * g.y();
+  block.fz -= pressure * g.z();
+  block.addOuter(k, g.x(), g.y(), g.z());
+}
 
 // Force and projected Hessian of one spring on particle `x` (the other end at `other`). The Hessian
 // k [u u^T + max(0, 1 - l0 / l) (I - u u^T)] drops the negative transverse part of a compressed spring, so every
@@ -138,17 +155,10 @@ std::string validate(const BlockDescentSettings& settings) {
   if (!(settings.contact_margin_scale >= 0) || !std::isfinite(settings.contact_margin_scale))
     return "contact_margin_scale must be a non-negative number";
   if (settings.contact_newton_steps < 1) return "contact_newton_steps must be >= 1";
-  if (settings.deep_contact_sweeps < 0) return "deep_contact_sweeps must be >= 0";
-  if (settings.threads < BlockDescentSettings::kThreadsMeasured)
-    return "threads must be >= -1 (0 = every core, -1 = one or every core as measured)";
   if (!(settings.tissue_relaxation_s >= 0) || !std::isfinite(settings.tissue_relaxation_s))
     return "tissue_relaxation_s must be a finite number >= 0";
-  if (!(settings.predict_extrapolation >= 0 && settings.predict_extrapolation <= kMaxPredictExtrapolation))
-    return "predict_extrapolation must lie in [0, 0.75] (1, linear extrapolation, diverged on the bundled gait)";
-  if (settings.max_iterations < 0) return "max_iterations must be >= 0";
-  if (!(settings.residual_tolerance >= 0) || !(settings.displacement_tolerance_m >= 0) ||
-      !(settings.time_budget_ms >= 0))
-    return "tolerances and the time budget must be finite and non-negative";
+  if (!(settings.volume_stiffness >= 0) || !std::isfinite(settings.volume_stiffness))
+    return "volume_stiffness must be a finite number >= 0";
   return {};
 }
 
@@ -179,11 +189,14 @@ double relativeSpringResidual(const MassSpringSystem& system, const Eigen::Matri
   return std::sqrt(sum / static_cast<double>(free_count)) / constant;
 }
 
-BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings)
-    : system_(system), settings_(settings) {
+BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings, int threads)
+    : system_(system), settings_(settings), threads_setting_(threads) {
   if (const std::string problem = validate(settings_); !problem.empty())
     throw std::invalid_argument("block descent settings: " + problem);
-  thread_count_ = settings_.threads > 0 ? settings_.threads : everyCore();
+  if (threads < kThreadsMeasured)
+    throw std::invalid_argument("block descent: threads must be >= -1 (0 = every core, -1 = one or every core as "
+                                "measured), not " + std::to_string(threads));
+  thread_count_ = threads > 0 ? threads : everyCore();
   const Eigen::Index n = system_.particleCount();
   const SpringSet& springs = system_.springs;
 
@@ -252,9 +265,89 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   neighbour_begin_.clear();
   residual_squared_.setZero(n);
   step_length_.setZero(n);
+  step_bound_.setZero(n);
+  volume_change_.setZero(n);
   contact_begin_.assign(static_cast<std::size_t>(n) + 1, 0);
   bounded_step_.assign(static_cast<std::size_t>(n), 0);
   for (Eigen::Index i = 0; i < system_.radius.size(); ++i) bounded_step_[static_cast<std::size_t>(i)] = system_.radius[i] > 0;
+}
+
+void BlockDescentSolver::setVolumeTerm(VolumeTerm term) {
+  if (term.active() && (static_cast<int>(term.stiffness.size()) != system_.muscleCount() ||
+                        term.rest_volume_m3.size() != term.stiffness.size()))
+    throw std::invalid_argument("block descent: a volume term of " + std::to_string(term.stiffness.size()) +
+                                " muscles for a system of " + std::to_string(system_.muscleCount()));
+  volume_ = std::move(term);
+  volume_gradient_.resize(3, 0);
+  const Eigen::Index n = system_.particleCount();
+  volume_step_.setZero(3, n);
+  volume_inverse_gradient_.setZero(3, n);
+  volume_pending_.assign(static_cast<std::size_t>(n), 0);
+}
+
+void BlockDescentSolver::limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const {
+  const double bound = step_bound_[p];
+  if (bound < 0) return;
+  const double length = (x - start).norm();
+  if (length > bound) x = start + (bound / length) * (x - start);
+}
+
+void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end,
+                                          int threads) {
+  // The colour's particles of one muscle minimise, together, their own quadratic models (step a_p = H_p^-1 f_p without
+  // the volume) plus k/2 (V + sum g_p . d_p - V_rest)^2, which couples them through one scalar: with b_p = H_p^-1 g_p,
+  // d_p = a_p - mu b_p and mu = k (V - V_rest + sum g.a) / (1 + k sum g.b) (Sherman-Morrison). Each particle taking the
+  // whole volume change for itself would overshoot it once per particle of the colour.
+  const std::size_t muscles = volume_now_.size();
+  colour_a_.assign(muscles, 0.0);
+  colour_b_.assign(muscles, 0.0);
+  for (std::int32_t k = begin; k < end; ++k) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+    if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
+    const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)]);
+    colour_a_[m] += volume_gradient_.col(p).dot(volume_step_.col(p));
+    colour_b_[m] += volume_gradient_.col(p).dot(volume_inverse_gradient_.col(p));
+  }
+  for (std::size_t m = 0; m < muscles; ++m) {
+    const double k = volume_.stiffness[m];
+    colour_a_[m] = k * (volume_now_[m] - volume_.rest_volume_m3[m] + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
+  }
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (std::int32_t k = begin; k < end; ++k) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+    if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
+    const double mu = colour_a_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])];
+    const Eigen::Vector3d start = position.col(p);
+    Eigen::Vector3d x = start + volume_step_.col(p) - mu * volume_inverse_gradient_.col(p);
+    limitStep(p, start, x);
+    step_length_[p] = (x - start).norm();
+    volume_change_[p] = volume_gradient_.col(p).dot(x - start);
+    position.col(p) = x;
+  }
+  // The steps changed the muscles' volumes by sum g . d (each exact on its own, V being linear in one particle; the
+  // cross terms of particles moved together are second order), added in particle order so that the result does not
+  // depend on the thread count.
+  for (std::int32_t k = begin; k < end; ++k) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+    if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
+    volume_now_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])] += volume_change_[p];
+    volume_pending_[static_cast<std::size_t>(p)] = 0;
+  }
+}
+
+void BlockDescentSolver::evaluateVolume(const Eigen::Matrix3Xd& position) {
+  if (!volume_.active()) return;
+  volume_.evaluate(position, volume_now_, volume_gradient_);
+}
+
+double BlockDescentSolver::volumeEnergy() const {
+  double energy = 0;
+  if (!volume_.active()) return energy;
+  for (std::size_t m = 0; m < volume_now_.size(); ++m) {
+    const double excess = volume_now_[m] - volume_.rest_volume_m3[m];
+    energy += 0.5 * volume_.stiffness[m] * excess * excess;
+  }
+  return energy;
 }
 
 void BlockDescentSolver::updateDragWeights() {
@@ -338,11 +431,10 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state, double margi
   }
 }
 
-int BlockDescentSolver::sweepThreads() const {
+int BlockDescentSolver::sweepThreads(const SolveLimits& limits) const {
   const int threads =
-      settings_.threads == BlockDescentSettings::kThreadsMeasured && thread_count_ > 1 ? measuredThreadChoice()
-                                                                                         : thread_count_;
-  return cappedThreads(threads, settings_.limits);
+      threads_setting_ == kThreadsMeasured && thread_count_ > 1 ? measuredThreadChoice() : thread_count_;
+  return cappedThreads(threads, limits);
 }
 
 int cappedThreads(int threads, const SolveLimits& limits) {
@@ -351,8 +443,8 @@ int cappedThreads(int threads, const SolveLimits& limits) {
   return cap > 0 ? std::min(cap, threads) : threads;
 }
 
-int parallelThreads(const BlockDescentSettings& settings) {
-  return cappedThreads(settings.threads > 0 ? settings.threads : everyCore(), settings.limits);
+int parallelThreads(int threads, const SolveLimits& limits) {
+  return cappedThreads(threads > 0 ? threads : everyCore(), limits);
 }
 
 int BlockDescentSolver::measuredThreadChoice() const {
@@ -365,7 +457,7 @@ int BlockDescentSolver::measuredThreadChoice() const {
 }
 
 void BlockDescentSolver::recordSweepTime(int threads, double milliseconds) {
-  if (settings_.threads != BlockDescentSettings::kThreadsMeasured || thread_count_ == 1) return;
+  if (threads_setting_ != kThreadsMeasured || thread_count_ == 1) return;
   if (threads != 1 && threads != thread_count_) return;  // capped in between: neither estimate
   const bool probe = threads != (sweep_ms_[0] > 0 && sweep_ms_[0] < sweep_ms_[1] ? 1 : thread_count_);
   double& estimate = sweep_ms_[threads == 1 ? 0 : 1];
@@ -405,6 +497,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         if (!touching) {
           residual_squared_[p] = 0;
           step_length_[p] = 0;
+          volume_change_[p] = 0;
           continue;
         }
       }
@@ -413,6 +506,16 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const bool has_contacts = contact_end > contact_begin;
       const double drag = drag_weight_[p];
       const Eigen::Vector3d carried = drag_anchor_->col(p);
+      // The muscle's volume term: V is linear in this particle's position (volume_term.hpp), V = V_now + g . (x - start).
+      const std::int32_t muscle = system_.muscle_of[static_cast<std::size_t>(p)];
+      const bool volume_on = volume_.active() && volume_.stiffness[static_cast<std::size_t>(muscle)] > 0 &&
+                             volume_gradient_.col(p).squaredNorm() > 0;
+      const double volume_k = volume_on ? volume_.stiffness[static_cast<std::size_t>(muscle)] : 0.0;
+      const Eigen::Vector3d volume_g = volume_on ? Eigen::Vector3d(volume_gradient_.col(p)) : Eigen::Vector3d::Zero();
+      const double volume_excess =
+          volume_on ? volume_now_[static_cast<std::size_t>(muscle)] - volume_.rest_volume_m3[static_cast<std::size_t>(muscle)]
+                    : 0.0;
+      const Eigen::Vector3d start = position.col(p);
       // The particle's own energy with every other particle held: what its step must decrease.
       const auto local_energy = [&](const Eigen::Vector3d& at) {
         double energy = 0;
@@ -426,7 +529,6 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         return energy + 0.5 * drag * (at - carried).squaredNorm();
       };
-      const Eigen::Vector3d start = position.col(p);
       Eigen::Vector3d x = start;
       const int newton_steps = has_contacts ? settings_.contact_newton_steps : 1;
       for (int newton = 0; newton < newton_steps; ++newton) {
@@ -448,8 +550,13 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         block.fy += drag * (carried.y() - x.y());
         block.fz += drag * (carried.z() - x.z());
         block.addIsotropic(drag);
-        if (newton == 0) residual_squared_[p] = block.forceSquared();
+        if (newton == 0) {
+          // The residual counts the volume term's force too, as the muscle's volume stands now.
+          const Eigen::Vector3d pressure = volume_k * volume_excess * volume_g;
+          residual_squared_[p] = (Eigen::Vector3d(block.fx, block.fy, block.fz) - pressure).squaredNorm();
+        }
         block.addIsotropic(regularisation_[p]);
+        if (volume_on) volume_inverse_gradient_.col(p) = block.solve(volume_g.x(), volume_g.y(), volume_g.z());
         Eigen::Vector3d step = block.step();
         // Where no contact touches at either end of the step the energy is smooth along it and the Newton step stands
         // (most particles near a contact: the margin lists pairs before they touch).
@@ -482,19 +589,26 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       // Vertex Block Descent bounds its steps for the same reason, plus the depth it starts at inside a listed sphere,
       // so that a particle the warm start carried deep into a bone gets out in one sweep. The next sweep finds what
       // lies beyond.
-      if (contact_query_ && bounded_step_[p]) {
-        double start_depth = 0;
+      double start_depth = 0;
+      if (contact_query_ && bounded_step_[p])
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
           start_depth = std::max(start_depth, entry.depth(start));
         }
-        const double bound = contact_margin_m_ + start_depth;
-        const double length = (x - start).norm();
-        if (length > bound) x = start + (bound / length) * (x - start);
+      step_bound_[p] = contact_query_ && bounded_step_[p] ? contact_margin_m_ + start_depth : -1.0;
+      if (volume_on) {
+        // The volume term's share of the step waits for the colour (below): every particle of the colour in the
+        // muscle moves at once, each on the same volume.
+        volume_step_.col(p) = x - start;
+        volume_pending_[static_cast<std::size_t>(p)] = 1;
+        continue;
       }
+      limitStep(p, start, x);
       step_length_[p] = (x - start).norm();
+      volume_change_[p] = 0;
       position.col(p) = x;
     }
+    if (volume_.active()) applyVolumeSteps(position, begin, end, threads);
   }
   // Sums in particle order, so they do not depend on the thread count either (in locals: the references might alias
   // the arrays as far as the compiler knows).
@@ -509,6 +623,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
 
 double BlockDescentSolver::residualOf(const ParticleState& state) {
   gatherContacts(state);
+  evaluateVolume(state.position);
   const Eigen::Matrix3Xd& position = state.position;
   const bool with_drag = state.carried_position.cols() == position.cols();
   double sum = 0;
@@ -535,6 +650,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       block.fy += pull.y();
       block.fz += pull.z();
     }
+    addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     sum += block.forceSquared();
   }
   const double free_count = std::max<double>(1.0, static_cast<double>(coloured_particles_.size()));
@@ -578,13 +694,23 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
     }
     energy += 0.5 * drag_weight_[p] * (x - drag_anchor_->col(p)).squaredNorm();
   }
+  if (volume_.active()) {
+    std::vector<double> volumes;
+    Eigen::Matrix3Xd unused;
+    volume_.evaluate(position, volumes, unused);
+    for (std::size_t m = 0; m < volumes.size(); ++m) {
+      const double excess = volumes[m] - volume_.rest_volume_m3[m];
+      energy += 0.5 * volume_.stiffness[m] * excess * excess;
+    }
+  }
   return energy;
 }
 
 void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Matrix3Xd& force,
-                                     std::vector<Eigen::Matrix3d>& inverse_blocks) const {
+                                     std::vector<Eigen::Matrix3d>& inverse_blocks) {
   force.setZero(3, position.cols());
   inverse_blocks.resize(static_cast<std::size_t>(position.cols()));
+  evaluateVolume(position);
 #pragma omp parallel for num_threads(thread_count_) schedule(static)
   for (std::int32_t slot = 0; slot < static_cast<std::int32_t>(coloured_particles_.size()); ++slot) {
     const std::int32_t p = coloured_particles_[static_cast<std::size_t>(slot)];
@@ -607,6 +733,7 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
     block.fy += pull.y();
     block.fz += pull.z();
     block.addIsotropic(drag + regularisation_[p]);
+    addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     force.col(p) = Eigen::Vector3d(block.fx, block.fy, block.fz);
     Eigen::Matrix3d hessian;
     hessian << block.hxx, block.hxy, block.hxz, block.hxy, block.hyy, block.hyz, block.hxz, block.hyz, block.hzz;
@@ -615,8 +742,28 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
 }
 
 void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& direction,
-                                           Eigen::Matrix3Xd& product) const {
+                                           Eigen::Matrix3Xd& product) {
   product.setZero(3, position.cols());
+  // The volume term couples every particle of a muscle: k (g . v) g from the square of its change, and
+  // k (V - V_rest) times V's own curvature along v. Fixed particles do not move: their directions are left out.
+  Eigen::Matrix3Xd volume_product;
+  if (volume_.active()) {
+    evaluateVolume(position);
+    Eigen::Matrix3Xd free_direction = direction;
+    for (Eigen::Index i = 0; i < free_direction.cols(); ++i)
+      if (system_.is_fixed[static_cast<std::size_t>(i)]) free_direction.col(i).setZero();
+    std::vector<double> along(volume_now_.size(), 0.0), weight(volume_now_.size(), 0.0);
+    for (Eigen::Index i = 0; i < free_direction.cols(); ++i)
+      along[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(i)])] +=
+          volume_gradient_.col(i).dot(free_direction.col(i));
+    for (std::size_t m = 0; m < weight.size(); ++m)
+      weight[m] = volume_.stiffness[m] * (volume_now_[m] - volume_.rest_volume_m3[m]);
+    volume_.curvature_times(position, free_direction, weight, volume_product);
+    for (Eigen::Index i = 0; i < free_direction.cols(); ++i) {
+      const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(i)]);
+      volume_product.col(i) += volume_.stiffness[m] * along[m] * volume_gradient_.col(i);
+    }
+  }
 #pragma omp parallel for num_threads(thread_count_) schedule(static)
   for (std::int32_t slot = 0; slot < static_cast<std::int32_t>(coloured_particles_.size()); ++slot) {
     const std::int32_t p = coloured_particles_[static_cast<std::size_t>(slot)];
@@ -645,27 +792,16 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
       const bool partner_free = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)];
       apply(block, partner_free ? Eigen::Vector3d(vp - direction.col(entry.partner)) : vp);
     }
+    if (volume_product.cols() > 0) sum += volume_product.col(p);
     product.col(p) = sum;
   }
 }
 
-void BlockDescentSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                                     double time_budget_ms, const SolveLimits& limits) {
-  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
-  settings_.stopping_rule = rule;
-  settings_.max_iterations = max_iterations;
-  settings_.displacement_tolerance_m = displacement_tolerance_m;
-  settings_.time_budget_ms = time_budget_ms;
-  settings_.limits = limits;
-}
-
-void BlockDescentSolver::setResidualTolerance(double relative_residual) {
-  if (!(relative_residual >= 0)) throw std::invalid_argument("residual tolerance must be >= 0");
-  settings_.residual_tolerance = relative_residual;
-}
-
-SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
+SolveStats BlockDescentSolver::solve(ParticleState& state, const StoppingSettings& stopping,
+                                     const AfterUpdateHook& after_update) {
   const auto solve_start = Clock::now();
+  if (const std::string problem = validate(stopping); !problem.empty())
+    throw std::invalid_argument("stopping settings: " + problem);
   SolveStats stats;
   const Eigen::Index n = system_.particleCount();
   if (state.position.cols() != n)
@@ -677,16 +813,17 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
   const bool chebyshev = settings_.chebyshev_rho > 0;
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;
   double omega = 1.0;
-  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  StoppingMonitor monitor(stopping.rule, stopping.displacement_tolerance_m, stopping.time_budget_ms);
   last_residual_ = 0;
 
   double previous_elapsed_ms = 0;
-  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+  for (int iteration = 0; iteration < stopping.max_iterations; ++iteration) {
     auto phase_start = Clock::now();
     if (iteration > 0) previous_elapsed_ms = millisecondsSince(solve_start);
     gatherContacts(state);
     stats.contacts = static_cast<int>(contacts_.size());
     stats.collision_ms += millisecondsSince(phase_start);
+    evaluateVolume(state.position);  // counted with the sweep: it is part of the energy the sweep descends
 
     phase_start = Clock::now();
     if (chebyshev && iteration == 0) {
@@ -694,7 +831,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
       chebyshev_older_ = state.position;
     }
     double residual_squared_sum = 0, displacement_sum = 0;
-    const int threads = sweepThreads();
+    const int threads = sweepThreads(stopping.limits);
     const auto sweep_start = Clock::now();
     sweep(state.position, residual_squared_sum, displacement_sum, threads);
     recordSweepTime(threads, millisecondsSince(sweep_start));
@@ -722,24 +859,23 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
       break;
     }
     const double elapsed_ms = millisecondsSince(solve_start);
-    if (settings_.stopping_rule == StoppingRule::force_residual) {
-      if (last_residual_ < settings_.residual_tolerance) {
-        stats.stopping_rule_met = stats.converged = true;
-        break;
-      }
-    } else if (settings_.stopping_rule == StoppingRule::time_budget) {
-      // A budget is a deadline: stop when another sweep as long as the last would end past it (at least one sweep).
-      const double sweep_ms = elapsed_ms - previous_elapsed_ms;
-      if (elapsed_ms + sweep_ms > settings_.time_budget_ms) {
+    if (stopping.rule == StoppingRule::force_residual) {
+      if (last_residual_ < stopping.residual_tolerance) {
         stats.stopping_rule_met = true;
         break;
       }
-    } else if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
+    } else if (stopping.rule == StoppingRule::time_budget) {
+      // A budget is a deadline: stop when another sweep as long as the last would end past it (at least one sweep).
+      const double sweep_ms = elapsed_ms - previous_elapsed_ms;
+      if (elapsed_ms + sweep_ms > stopping.time_budget_ms) {
+        stats.stopping_rule_met = true;
+        break;
+      }
+    } else if (monitor.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
-      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
       break;
     }
-    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+    if (solveLimitReached(stopping.limits, elapsed_ms, stats)) break;
   }
   if (!stats.diverged && contact_query_ && stats.iterations > 0 && !stats.cancelled) {
     // Closing contact pass: only the particles touching a listed contact are visited, so that what the last sweep's
@@ -748,7 +884,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     // was longer than the detection margin beyond the depth it started at.
     const auto pass_start = Clock::now();
     double ignored_residual = 0, ignored_displacement = 0;
-    sweep(state.position, ignored_residual, ignored_displacement, sweepThreads(), true);
+    sweep(state.position, ignored_residual, ignored_displacement, sweepThreads(stopping.limits), true);
     state.previous_position = state.position;
     stats.collision_ms += millisecondsSince(pass_start);
   }
@@ -759,6 +895,11 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const AfterUpdateHook
     state.previous_position = entry_position_;
   }
   stats.residual = last_residual_;
+  // Converged means the residual criterion, however the solve ended: a fixed number of sweeps or a time budget that
+  // left the frame within the tolerance has converged as much as one the residual rule stopped.
+  stats.converged = !stats.diverged && stats.iterations > 0 && last_residual_ < stopping.residual_tolerance;
+  if (stopping.rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached && !stats.cancelled)
+    stats.stopping_rule_met = true;
   stats.total_ms = millisecondsSince(solve_start);
   recordSpringMetrics(system_.springs, state.position, stats);
   return stats;

@@ -56,9 +56,6 @@ Eigen::Matrix3d projectDeterminant(const Eigen::Matrix3d& f, double target) {
 }  // namespace
 
 std::string validate(const LocalGlobalSettings& s) {
-  if (s.stopping_rule == StoppingRule::force_residual)
-    return "the local/global solver does not measure a force residual (stopping rule force_residual needs solver "
-           "block_descent)";
   if (!(s.time_step_s > 0) || !std::isfinite(s.time_step_s)) return "time_step_s must be positive and finite";
   if (s.iterations_per_step < 1) return "iterations_per_step must be >= 1";
   if (!(s.damping >= 0 && s.damping <= 1)) return "damping must be in [0, 1]";
@@ -75,8 +72,6 @@ std::string validate(const LocalGlobalSettings& s) {
   if (s.lbfgs_history < 0) return "lbfgs_history must be >= 0";
   if (s.lbfgs_history > 0 && !s.quasi_static) return "lbfgs_history needs the quasi-static mode";
   if (s.lbfgs_history > 0 && s.chebyshev_rho > 0) return "lbfgs_history and chebyshev_rho exclude each other";
-  if (s.max_iterations < 0) return "max_iterations must be >= 0";
-  if (!(s.displacement_tolerance_m >= 0) || !(s.time_budget_ms >= 0)) return "tolerances must be non-negative";
   return {};
 }
 
@@ -432,8 +427,9 @@ double LocalGlobalSolver::energyAndGradient(const Eigen::Matrix3Xd& position, co
   return energy;
 }
 
-void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update,
-                                              SolveStats& stats, Clock::time_point solve_start) {
+void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const StoppingSettings& stopping_settings,
+                                              const AfterUpdateHook& after_update, SolveStats& stats,
+                                              Clock::time_point solve_start) {
   // L-BFGS two-loop recursion with H0 = (L + W)^-1 (the prefactored matrix), backtracking (Armijo) line search on the
   // energy. The collision hook runs after every accepted step; when it moved particles the energy and gradient are
   // evaluated again at the corrected positions, so every curvature pair is between points where gradients were taken.
@@ -442,12 +438,12 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
   constexpr double kArmijo = 1e-4;
   constexpr int kMaxHalvings = 30;
   int stored = 0, newest = -1;
-  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  StoppingMonitor stopping(stopping_settings.rule, stopping_settings.displacement_tolerance_m, stopping_settings.time_budget_ms);
 
   auto mss_start = Clock::now();
   gatherFree(state.position, free_current_);
   double energy = energyAndGradient(state.position, free_current_, gradient_);
-  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+  for (int iteration = 0; iteration < stopping_settings.max_iterations; ++iteration) {
     if (iteration > 0) {
       const int slot = (newest + 1) % history;
       history_step_[slot] = free_current_ - free_previous_;
@@ -499,7 +495,7 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
       stats.iterations = iteration + 1;
       stats.mean_displacement_m = 0;
       stats.mss_ms += millisecondsSince(mss_start);
-      stats.stopping_rule_met = settings_.stopping_rule != StoppingRule::time_budget;
+      stats.stopping_rule_met = stopping_settings.rule != StoppingRule::time_budget;
       stats.converged = stats.no_descent_left = true;  // a minimum (of what the hook allows)
       return;
     }
@@ -530,28 +526,21 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const AfterU
     const double elapsed_ms = millisecondsSince(solve_start);
     if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
-      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
+      stats.converged = stopping_settings.rule == StoppingRule::displacement;
       break;
     }
-    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+    if (solveLimitReached(stopping_settings.limits, elapsed_ms, stats)) break;
   }
   stats.mss_ms += millisecondsSince(mss_start);
 }
 
-void LocalGlobalSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                                    double time_budget_ms, const SolveLimits& limits) {
-  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
-  if (rule == StoppingRule::force_residual)
+SolveStats LocalGlobalSolver::solve(ParticleState& state, const StoppingSettings& stopping_settings,
+                                    const AfterUpdateHook& after_update) {
+  if (const std::string problem = validate(stopping_settings); !problem.empty())
+    throw std::invalid_argument("stopping settings: " + problem);
+  if (stopping_settings.rule == StoppingRule::force_residual)
     throw std::invalid_argument("the local/global solver does not measure a force residual (stopping rule "
-                                "force_residual needs solver block_descent)");
-  settings_.stopping_rule = rule;
-  settings_.max_iterations = max_iterations;
-  settings_.displacement_tolerance_m = displacement_tolerance_m;
-  settings_.time_budget_ms = time_budget_ms;
-  settings_.limits = limits;
-}
-
-SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
+                                "force_residual needs solver block_descent or newton_krylov)");
   const Eigen::Index n = system_.particleCount();
   if (state.position.cols() != n || state.previous_position.cols() != n)
     throw std::invalid_argument("particle state does not match the mass-spring system (" +
@@ -567,8 +556,8 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
   fixed_rhs_.noalias() = -(free_fixed_ * fixed_position_);
 
   if (settings_.lbfgs_history > 0) {
-    quasiNewtonIterations(state, after_update, stats, solve_start);
-    return finishSolve(state, stats, solve_start);
+    quasiNewtonIterations(state, stopping_settings, after_update, stats, solve_start);
+    return finishSolve(state, stopping_settings, stats, solve_start);
   }
   const double free_count = std::max<double>(1.0, static_cast<double>(free_count_));
   const int per_step = settings_.quasi_static ? 1 : settings_.iterations_per_step;
@@ -577,9 +566,9 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;
   double omega = 1.0;
   int step_iteration = 0;  // iterations since the start of the current time step (Chebyshev restarts with it)
-  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  StoppingMonitor stopping(stopping_settings.rule, stopping_settings.displacement_tolerance_m, stopping_settings.time_budget_ms);
 
-  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+  for (int iteration = 0; iteration < stopping_settings.max_iterations; ++iteration) {
     const auto mss_start = Clock::now();
     for (Eigen::Index f = 0; f < free_count_; ++f)
       free_current_.row(f) = state.position.col(free_particle_[static_cast<std::size_t>(f)]).transpose();
@@ -635,15 +624,16 @@ SolveStats LocalGlobalSolver::solve(ParticleState& state, const AfterUpdateHook&
     const double elapsed_ms = millisecondsSince(solve_start);
     if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
-      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
+      stats.converged = stopping_settings.rule == StoppingRule::displacement;
       break;
     }
-    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+    if (solveLimitReached(stopping_settings.limits, elapsed_ms, stats)) break;
   }
-  return finishSolve(state, stats, solve_start);
+  return finishSolve(state, stopping_settings, stats, solve_start);
 }
 
-SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stats, Clock::time_point solve_start) const {
+SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, const StoppingSettings& stopping, SolveStats& stats,
+                                          Clock::time_point solve_start) const {
   // The last collision hook ran after the last displacement was measured.
   if (!stats.diverged && !state.position.allFinite()) stats.diverged = true;
   if (stats.diverged) {
@@ -655,7 +645,7 @@ SolveStats LocalGlobalSolver::finishSolve(ParticleState& state, SolveStats& stat
   // The quasi-static result is an equilibrium: leave it at rest.
   if (settings_.quasi_static) state.previous_position = state.position;
   if (stats.diverged) stats.converged = stats.no_descent_left = false;
-  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
+  if (stopping.rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
       !stats.cancelled)
     stats.stopping_rule_met = true;
   stats.last_dt_s = stats.min_dt_s = stats.max_dt_s = settings_.quasi_static ? 0.0 : settings_.time_step_s;

@@ -29,8 +29,8 @@ std::string validate(const NewtonKrylovSettings& settings) {
 }
 
 NewtonKrylovSolver::NewtonKrylovSolver(const MassSpringSystem& system, const BlockDescentSettings& energy,
-                                       NewtonKrylovSettings settings)
-    : system_(system), energy_(system, energy), settings_(settings) {
+                                       NewtonKrylovSettings settings, int threads)
+    : system_(system), energy_(system, energy, threads), settings_(settings) {
   if (const std::string problem = validate(settings_); !problem.empty())
     throw std::invalid_argument("Newton-Krylov settings: " + problem);
   material_constant_n_ = energy_.materialConstant();
@@ -40,14 +40,11 @@ void NewtonKrylovSolver::setContactQuery(ContactQuery query, bool every_particle
   energy_.setContactQuery(std::move(query), every_particle_collides);
 }
 
-void NewtonKrylovSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                                     double time_budget_ms, const SolveLimits& limits) {
-  energy_.setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
-}
-
-SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
+SolveStats NewtonKrylovSolver::solve(ParticleState& state, const StoppingSettings& rule,
+                                     const AfterUpdateHook& after_update) {
   const auto solve_start = Clock::now();
-  const BlockDescentSettings& rule = energy_.settings();
+  if (const std::string problem = validate(rule); !problem.empty())
+    throw std::invalid_argument("stopping settings: " + problem);
   SolveStats stats;
   const Eigen::Index n = system_.particleCount();
   if (state.position.cols() != n)
@@ -56,7 +53,7 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
   const std::vector<std::int32_t>& free = energy_.freeParticles();
   const double free_count = std::max<double>(1.0, static_cast<double>(free.size()));
   const Eigen::Matrix3Xd entry = state.position;
-  StoppingMonitor stopping(rule.stopping_rule, rule.displacement_tolerance_m, rule.time_budget_ms);
+  StoppingMonitor stopping(rule.rule, rule.displacement_tolerance_m, rule.time_budget_ms);
   Eigen::Matrix3Xd force, step, residual, preconditioned, search, product, trial;
   std::vector<Eigen::Matrix3d> inverse_blocks;
   last_cg_iterations_ = 0;
@@ -76,8 +73,8 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
       energy_.endFrame();
       break;
     }
-    if (rule.stopping_rule == StoppingRule::force_residual && last_residual_ < rule.residual_tolerance) {
-      stats.stopping_rule_met = stats.converged = true;
+    if (rule.rule == StoppingRule::force_residual && last_residual_ < rule.residual_tolerance) {
+      stats.stopping_rule_met = true;
       energy_.endFrame();
       break;
     }
@@ -146,13 +143,12 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
     stats.mean_displacement_m = displacement_sum / free_count;
     stats.peak_mean_displacement_m = std::max(stats.peak_mean_displacement_m, stats.mean_displacement_m);
     if (accepted == 0) {  // no step lowers the energy at machine precision: at its minimum
-      stats.no_descent_left = stats.converged = true;
+      stats.no_descent_left = true;
       break;
     }
     const double elapsed_ms = millisecondsSince(solve_start);
-    if (rule.stopping_rule != StoppingRule::force_residual && stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
+    if (rule.rule != StoppingRule::force_residual && stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
-      stats.converged = rule.stopping_rule == StoppingRule::displacement;
       break;
     }
     if (solveLimitReached(rule.limits, elapsed_ms, stats)) break;
@@ -161,8 +157,17 @@ SolveStats NewtonKrylovSolver::solve(ParticleState& state, const AfterUpdateHook
   if (stats.diverged) {
     state.position = entry;
     state.previous_position = entry;
+  } else if (stats.iterations > 0 && !stats.stopping_rule_met) {
+    // The last residual was taken before the last step: measure where the solve ended, which "converged" judges.
+    energy_.beginFrame(state);
+    energy_.frameForces(state.position, force, inverse_blocks);
+    energy_.endFrame();
+    last_residual_ = std::sqrt(dot(free, force, force)) / std::sqrt(free_count) / material_constant_n_;
   }
   stats.residual = last_residual_;
+  stats.converged = !stats.diverged && stats.iterations > 0 && last_residual_ < rule.residual_tolerance;
+  if (rule.rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached && !stats.cancelled)
+    stats.stopping_rule_met = true;
   stats.total_ms = millisecondsSince(solve_start);
   recordSpringMetrics(system_.springs, state.position, stats);
   return stats;

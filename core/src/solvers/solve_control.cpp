@@ -53,6 +53,15 @@ class StrainHistogram {
 
 }  // namespace
 
+std::string validate(const StoppingSettings& stopping) {
+  if (stopping.max_iterations < 0) return "max_iterations must be >= 0";
+  if (!(stopping.displacement_tolerance_m >= 0) || !(stopping.residual_tolerance >= 0) ||
+      !(stopping.time_budget_ms >= 0) || !std::isfinite(stopping.displacement_tolerance_m) ||
+      !std::isfinite(stopping.residual_tolerance) || !std::isfinite(stopping.time_budget_ms))
+    return "tolerances and the time budget must be finite and non-negative";
+  return {};
+}
+
 SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position) {
   SpringMetrics metrics;
   if (springs.size() == 0) return metrics;

@@ -11,9 +11,9 @@ std::unique_ptr<SoftBodySolver> makeSolver(const SolverChoice& choice, const Mas
     case SolverKind::local_global:
       return std::make_unique<LocalGlobalSolver>(system, choice.local_global);
     case SolverKind::block_descent:
-      return std::make_unique<BlockDescentSolver>(system, choice.block_descent);
+      return std::make_unique<BlockDescentSolver>(system, choice.block_descent, choice.threads);
     case SolverKind::newton_krylov:
-      return std::make_unique<NewtonKrylovSolver>(system, choice.block_descent, choice.newton_krylov);
+      return std::make_unique<NewtonKrylovSolver>(system, choice.block_descent, choice.newton_krylov, choice.threads);
   }
   throw std::invalid_argument("unknown solver kind " + std::to_string(static_cast<int>(choice.kind)));
 }

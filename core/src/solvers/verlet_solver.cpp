@@ -68,13 +68,8 @@ Eigen::VectorXd stiffnessScaledMass(const MassSpringSystem& system) {
 
 VerletSolver::VerletSolver(const MassSpringSystem& system, VerletSettings settings)
     : system_(system), settings_(settings) {
-  if (settings_.max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
-  if (settings_.stopping_rule == StoppingRule::force_residual)
-    throw std::invalid_argument("the verlet solver does not measure a force residual (stopping rule force_residual "
-                                "needs solver block_descent)");
   if (!(settings_.dt_s >= 0) || !(settings_.dt_min_s >= 0) || !(settings_.damping_ns_per_m >= 0) ||
-      !(settings_.damping_scale >= 0) || !(settings_.displacement_tolerance_m >= 0) ||
-      !(settings_.time_budget_ms >= 0))
+      !(settings_.damping_scale >= 0))
     throw std::invalid_argument("solver settings must be finite and non-negative");
 
   const Eigen::Index n = system_.particleCount();
@@ -219,12 +214,12 @@ double VerletSolver::step(ParticleState& state) {
   return dt;
 }
 
-bool VerletSolver::attempt(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
-                           Clock::time_point solve_start) {
+bool VerletSolver::attempt(ParticleState& state, const StoppingSettings& stopping,
+                           const AfterUpdateHook& after_update, SolveStats& stats, Clock::time_point solve_start) {
   const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
-  StoppingMonitor stopping(settings_.stopping_rule, settings_.displacement_tolerance_m, settings_.time_budget_ms);
+  StoppingMonitor monitor(stopping.rule, stopping.displacement_tolerance_m, stopping.time_budget_ms);
   DivergenceMonitor divergence(mean_rest_length_);
-  for (int iteration = 0; iteration < settings_.max_iterations; ++iteration) {
+  for (int iteration = 0; iteration < stopping.max_iterations; ++iteration) {
     const auto mss_start = Clock::now();
     computeForces(state.position);
     const double dt = settings_.dt_rule == TimeStepRule::adaptive ? adaptiveTimeStep(state) : dt_;
@@ -241,31 +236,24 @@ bool VerletSolver::attempt(ParticleState& state, const AfterUpdateHook& after_up
 
     if (divergence.diverged(stats.mean_displacement_m, moved.step_correlation)) return false;
     const double elapsed_ms = millisecondsSince(solve_start);
-    if (stopping.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
+    if (monitor.met(iteration, stats.mean_displacement_m, elapsed_ms)) {
       stats.stopping_rule_met = true;
-      stats.converged = settings_.stopping_rule == StoppingRule::displacement;
+      stats.converged = stopping.rule == StoppingRule::displacement;
       break;
     }
-    if (solveLimitReached(settings_.limits, elapsed_ms, stats)) break;
+    if (solveLimitReached(stopping.limits, elapsed_ms, stats)) break;
   }
   // The collision hook of the last iteration runs after the last integration, so check what it left too.
   return state.position.allFinite();
 }
 
-void VerletSolver::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                               double time_budget_ms, const SolveLimits& limits) {
-  if (max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
-  if (rule == StoppingRule::force_residual)
+SolveStats VerletSolver::solve(ParticleState& state, const StoppingSettings& stopping,
+                               const AfterUpdateHook& after_update) {
+  if (const std::string problem = validate(stopping); !problem.empty())
+    throw std::invalid_argument("stopping settings: " + problem);
+  if (stopping.rule == StoppingRule::force_residual)
     throw std::invalid_argument("the verlet solver does not measure a force residual (stopping rule force_residual "
-                                "needs solver block_descent)");
-  settings_.stopping_rule = rule;
-  settings_.max_iterations = max_iterations;
-  settings_.displacement_tolerance_m = displacement_tolerance_m;
-  settings_.time_budget_ms = time_budget_ms;
-  settings_.limits = limits;
-}
-
-SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& after_update) {
+                                "needs solver block_descent or newton_krylov)");
   if (state.position.cols() != system_.particleCount() || state.previous_position.cols() != system_.particleCount())
     throw std::invalid_argument("particle state does not match the mass-spring system (" +
                                 std::to_string(state.position.cols()) + " particles given, " +
@@ -278,7 +266,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
 
   // Retries share the solve's time budget (StoppingRule::time_budget): a budget spent on a diverged attempt leaves
   // the retry little time, which keeps the frame's cost bounded.
-  while (!attempt(state, after_update, stats, solve_start)) {
+  while (!attempt(state, stopping, after_update, stats, solve_start)) {
     state.position = entry_position_;
     state.previous_position = entry_previous_position_;
     // The diverged attempt's steps (possibly infinite) describe nothing that is left in the state.
@@ -295,7 +283,7 @@ SolveStats VerletSolver::solve(ParticleState& state, const AfterUpdateHook& afte
     dt_ /= 2.0;
     dt_min_ /= 2.0;
   }
-  if (settings_.stopping_rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
+  if (stopping.rule == StoppingRule::iterations && !stats.diverged && !stats.time_limit_reached &&
       !stats.cancelled)
     stats.stopping_rule_met = true;
   if (stats.iterations == 0) stats.min_dt_s = 0;

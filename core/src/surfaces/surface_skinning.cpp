@@ -3,7 +3,7 @@
 
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
-#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/base/point_index.hpp"
 
 #include <Eigen/LU>
 
@@ -235,6 +235,21 @@ void MuscleSkin::precomputeNearestAverage(const Eigen::Matrix3Xd& rest_particles
 
 void MuscleSkin::update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
                         Vertices& surface) const {
+  linearPart(particle_positions, surface);
+  if (method_ != SkinningMethod::nearest_average) return;
+  const Eigen::Index vertices = weights_.rows();
+  for (Eigen::Index v = 0; v < vertices; ++v)
+    for (std::int32_t k = rotation_begin_[v]; k < rotation_begin_[v + 1]; ++k) {
+      const std::int32_t bone = rotation_bone_[k];
+      // A missing transform (e.g. at precompute, or a bone the caller did not pose) means the bone is at rest.
+      if (bone == kNoBone || bone >= static_cast<std::int32_t>(bone_transforms.size()))
+        surface.col(v) += rotation_offset_[k];
+      else
+        surface.col(v) += bone_transforms[bone].linear() * rotation_offset_[k];
+    }
+}
+
+void MuscleSkin::linearPart(const Eigen::Matrix3Xd& particle_positions, Vertices& surface) const {
   if (particle_positions.cols() < particle_begin_ + particle_count_)
     throw std::invalid_argument("skinning update: " + std::to_string(particle_positions.cols()) +
                                 " particle positions, the muscle needs " +
@@ -258,16 +273,6 @@ void MuscleSkin::update(const Eigen::Matrix3Xd& particle_positions, const BoneTr
     surface(1, v) = y;
     surface(2, v) = z;
   }
-  if (method_ != SkinningMethod::nearest_average) return;
-  for (Eigen::Index v = 0; v < vertices; ++v)
-    for (std::int32_t k = rotation_begin_[v]; k < rotation_begin_[v + 1]; ++k) {
-      const std::int32_t bone = rotation_bone_[k];
-      // A missing transform (e.g. at precompute, or a bone the caller did not pose) means the bone is at rest.
-      if (bone == kNoBone || bone >= static_cast<std::int32_t>(bone_transforms.size()))
-        surface.col(v) += rotation_offset_[k];
-      else
-        surface.col(v) += bone_transforms[bone].linear() * rotation_offset_[k];
-    }
 }
 
 SurfaceSkinning::SurfaceSkinning(const MassSpringSystem& system, const std::vector<Muscle>& muscles,

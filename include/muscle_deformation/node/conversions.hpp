@@ -5,7 +5,9 @@
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/single_pose_session.hpp"
 
+#include <muscle_deformation/DeformPose.h>
 #include <muscle_deformation/DeformationStats.h>
 #include <muscle_deformation/MuscleSurfaces.h>
 
@@ -41,6 +43,22 @@ Eigen::Isometry3d rigidTransformFromMessage(const geometry_msgs::Transform& tran
 // normalises the others (their length before in `quaternion_length`, if given). `what` names the field in the error.
 Eigen::Isometry3d isometryFromMessage(const geometry_msgs::Transform& transform, const std::string& what,
                                       double* quaternion_length = nullptr);
+
+// Why a /joint_states message cannot be a pose of the stream, by the service's rule (a non-finite position, a joint
+// named twice): empty when it can. `duplicate` tells which of the two it is.
+std::string jointStateProblem(const sensor_msgs::JointState& joint_state, bool& duplicate);
+
+// The joints of `joint_state` outside their URDF limits, as one line (empty: none, or nothing to say).
+std::string jointLimitWarnings(const Skeleton& skeleton, const sensor_msgs::JointState& joint_state);
+
+// A ~deform_pose request as the single-pose session takes it: the pose (joint_state through the skeleton's forward
+// kinematics, expressed in `fixed_frame` when it is a link of the skeleton, else in the root; or bone_poses, which
+// must be given in `fixed_frame`), the muscles, limits and warm start. `frame_id` receives the frame the answer is
+// in. Throws std::invalid_argument naming the field of a bad request (unknown joint or link, no pose, a link given
+// twice, a non-finite or far from unit transform).
+SinglePoseRequest singlePoseRequestFromMessage(const muscle_deformation::DeformPose::Request& request,
+                                               const Skeleton& skeleton, const std::string& fixed_frame,
+                                               std::string& frame_id);
 
 // ----- core -> messages -----
 

@@ -1,17 +1,22 @@
 // The roscpp node: skeleton poses from tf in, deformed fibres, particles, surfaces and statistics out, plus the
-// ~deform_pose service. Parameters in config/muscle_deformation.yaml, topics in the README.
+// ~deform_pose service. Parameters in config/muscle_deformation.yaml, topics in the README. A thin adapter: the stream
+// protocol is the core's StreamSession, single poses the core's SinglePoseSession; the node turns messages into their
+// inputs and their frames into messages.
 //
 // Threads: joint_states and the diagnostics timer run on the global callback queue (main's spinner); the streaming solve
 // runs on a worker thread of its own that always takes the newest pending pose, so a slow solve never builds a
-// backlog. The service runs on a callback queue and spinner of its own, solves on its own DeformationPipeline one call
-// at a time and never touches the streaming one, so no number of service calls can hold up the stream or the
-// diagnostics. Every solve is bounded in time (~max_solve_time_s) and ends within an iteration at shutdown.
+// backlog, and refines an unfinished frame while no pose comes. The service runs on a callback queue and spinner of
+// its own, solves on its own session one call at a time and never touches the stream's, so no number of service
+// calls can hold up the stream or the diagnostics. Every solve is bounded in time (~max_solve_time_s) and ends within
+// an iteration at shutdown.
 #pragma once
 
-#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "muscle_deformation/core/pipeline/single_pose_session.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
-#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/node/parameters.hpp"
+#include "muscle_deformation/node/pose_diagnostics.hpp"
+#include "muscle_deformation/node/tf_bone_lookup.hpp"
 
 #include <muscle_deformation/DeformPose.h>
 
@@ -25,13 +30,11 @@
 
 #include <atomic>
 #include <condition_variable>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
-#include <vector>
 
 namespace muscle_deformation::node {
 
@@ -45,63 +48,35 @@ class MuscleDeformationNode {
   MuscleDeformationNode& operator=(const MuscleDeformationNode&) = delete;
 
  private:
-  // Why a pose was not solved is counted per cause, so that the diagnostics say what happened.
-  struct Counters {
-    std::uint32_t received = 0, solved = 0, dropped = 0, unchanged = 0, tf_failures = 0, non_finite_joint_states = 0,
-                  future_stamps = 0, resets = 0, non_finite = 0, divergence_recoveries = 0, diverged = 0;
-  };
-  struct LinkPoses {
-    ros::Time stamp;
-    std::map<std::string, Eigen::Isometry3d> poses;  // bone links in the fixed frame
-  };
   using ServiceEvent = ros::ServiceEvent<muscle_deformation::DeformPose::Request, muscle_deformation::DeformPose::Response>;
 
+  void loadScene();
+  void advertise();
   // Streaming
   void onJointStates(const sensor_msgs::JointState::ConstPtr& message);
   void workerLoop();
-  // Waits (wall time, up to tf_wait_s, or until a newer pose arrives) until every bone's transform at `stamp` is
-  // available. Returns false, with `error` naming the missing transform, if they did not all arrive.
-  bool lookupBones(const ros::Time& stamp, LinkPoses& out, std::string& error);
-  void countUnsolvedPose(const ros::Time& stamp, const std::string& error);
-  // Warns (throttled) about joint values outside their URDF limits.
-  void warnAboutJointLimits(const sensor_msgs::JointState& message);
-  void solveStreamFrame(const LinkPoses& link_poses);
+  void solvePose(const ros::Time& stamp);
   bool anyOutputWanted() const;
-
+  FrameWants frameWants() const;
+  void publish(const StreamStep& step, const ros::Time& stamp);
   // Service
   bool onDeformPose(ServiceEvent& event);
-  // Throws std::invalid_argument (bad request) or a core error; fills the response on success.
-  void deformPose(const muscle_deformation::DeformPose::Request& request, const std::string& caller,
-                  muscle_deformation::DeformPose::Response& response);
-  // `warnings` collects joint values outside their URDF limits.
-  std::map<std::string, Eigen::Isometry3d> linkPosesFromRequest(const muscle_deformation::DeformPose::Request& request,
-                                                                std::string& frame_id,
-                                                                std::vector<std::string>& warnings) const;
-
-  // Diagnostics
-  void diagnoseOutputRate(diagnostic_updater::DiagnosticStatusWrapper& status);
-  void diagnoseSolveTime(diagnostic_updater::DiagnosticStatusWrapper& status);
-  void diagnosePoses(diagnostic_updater::DiagnosticStatusWrapper& status);
 
   ros::NodeHandle node_, private_node_;
   NodeSettings settings_;
   SceneDescription scene_description_;
   Scene scene_;
-  std::vector<Eigen::Vector3d> bone_centres_;  // rest centroid of each bone (for the pose-jump measure)
-  std::unique_ptr<DeformationPipeline> stream_;
+  std::unique_ptr<StreamSession> stream_;  // the worker's only
+  std::unique_ptr<TfBoneLookup> bone_lookup_;
+  PoseDiagnostics pose_diagnostics_;
 
-  // Service: its own queue and threads. One call solves at a time; up to ~service_max_queued wait for it, further
-  // calls are refused at once.
+  // Service: its own queue and threads. One call solves at a time (service_mutex_); up to ~service_max_queued wait
+  // for it, further calls are refused at once.
   ros::CallbackQueue service_queue_;
   std::unique_ptr<ros::AsyncSpinner> service_spinner_;
   std::atomic<int> service_calls_{0};  // being served or waiting
-  std::mutex service_mutex_;           // guards everything below
-  std::unique_ptr<DeformationPipeline> service_pipeline_;
-  std::string service_pipeline_key_;
-  // Warm starts continue the previous call of the same caller only (see deformPose).
-  std::string service_previous_caller_;
-  BoneTransforms service_previous_transforms_;
-  bool service_has_previous_ = false;
+  std::mutex service_mutex_;
+  std::unique_ptr<SinglePoseSession> single_pose_;
 
   // Raised at shutdown: every running solve ends after its current iteration.
   std::atomic<bool> shutting_down_{false};
@@ -123,18 +98,10 @@ class MuscleDeformationNode {
   std::condition_variable pending_changed_;
   std::optional<ros::Time> pending_;
   bool stopping_ = false;
-
-  // Counters and the solve times since the last diagnostics update (guarded by counters_mutex_).
-  mutable std::mutex counters_mutex_;
-  Counters counters_;
-  std::vector<double> window_solve_ms_;
-  std::uint32_t window_solved_ = 0, window_dropped_ = 0, window_tf_failures_ = 0, window_received_ = 0,
-                window_non_finite_joint_states_ = 0, window_future_stamps_ = 0;
-  ros::WallTime window_start_;
-  std::string last_tf_error_, last_joint_state_error_;
-
-  // Worker-only state of the stream: warm, cold or unchanged for each new pose.
-  std::unique_ptr<PoseStream> stream_policy_;
+  // A pose stamped ahead of the clock came in: robot_state_publisher's transforms at that stamp displace every older
+  // one from tf's buffer (its cache keeps ~30 s behind the newest), so the buffer is cleared when a pose stamped on
+  // time then finds no transforms.
+  std::atomic<bool> tf_holds_future_data_{false};
 
   std::thread worker_;
 };

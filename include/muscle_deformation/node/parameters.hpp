@@ -3,9 +3,8 @@
 // a table of the same entry type.
 #pragma once
 
-#include "muscle_deformation/core/pipeline/pose_stream.hpp"
-#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/pipeline/settings_table.hpp"
+#include "muscle_deformation/core/pipeline/single_pose_session.hpp"
 
 #include <ros/node_handle.h>
 #include <xmlrpcpp/XmlRpcValue.h>
@@ -17,8 +16,8 @@
 
 namespace muscle_deformation::node {
 
+// How the node takes poses in and publishes frames (the stream's protocol is the core's StreamSessionSettings).
 struct StreamSettings {
-  PoseStreamSettings policy;              // warm / cold / unchanged (warm_start, max_bone_speed_*, unchanged_*)
   double tf_wait_s = 0.2;                 // wall time to wait for a pose's transforms before counting a tf failure
   bool colour_fibres_by_strain = false;
   float surface_alpha = 0.8f;             // opacity of ~surface_markers
@@ -26,15 +25,11 @@ struct StreamSettings {
   double expected_rate_hz = 60.0;         // diagnostics: expected output rate
 };
 
-// The ~deform_pose service solves single poses cold, where the streaming solve runs warm: the fastest solver for each
-// differs (docs/BENCHMARKS.md, "Fastest configuration per error target"), so the service has its own.
+// The ~deform_pose service: the core's single-pose session (~service_solver, ~service_lbfgs_history,
+// ~service_max_iterations, ~service_warm_max_*) and how many calls may wait.
 struct ServiceSettings {
-  SolverKind solver_kind = SolverKind::block_descent;  // ~service_solver
-  int lbfgs_history = 16;                              // ~service_lbfgs_history (local_global only)
-  int max_iterations = 20;                             // ~service_max_iterations (a request's max_iterations wins)
-  int max_queued = 4;                   // ~service_max_queued: calls that may wait while one solves; more are refused
-  double warm_max_translation_m = 0.05;  // ~service_warm_max_translation_m: a warm start further away starts cold
-  double warm_max_rotation_rad = 0.5;    // ~service_warm_max_rotation_rad
+  SinglePoseSettings single_pose;
+  int max_queued = 4;  // ~service_max_queued: calls that may wait while one solves; more are refused
 };
 
 struct NodeSettings {
@@ -43,7 +38,7 @@ struct NodeSettings {
   std::vector<std::string> muscles;      // ~muscles: names or tags, empty = all
   std::string fixed_frame = "pelvis";    // ~fixed_frame
   double max_solve_time_s = 10.0;        // ~max_solve_time_s: wall-time ceiling of any solve, stream or service
-  PipelineSettings pipeline;  // the streaming solve's
+  CoreSettings core;      // the core's table: the pipeline and the stream session
   StreamSettings stream;
   ServiceSettings service;
 };
@@ -92,9 +87,5 @@ class MapParameters : public ParameterSource {
 // Throws std::invalid_argument naming the parameter and what is wrong.
 NodeSettings readNodeSettings(const ParameterSource& parameters, const std::string& package_root);
 NodeSettings readNodeSettings(const ros::NodeHandle& private_node, const std::string& package_root);
-
-// shareStoppingRule (the one set of stopping parameters driving whichever solver runs) is the core's:
-// pipeline/simulation.hpp.
-
 
 }  // namespace muscle_deformation::node

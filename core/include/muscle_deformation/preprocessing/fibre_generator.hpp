@@ -4,7 +4,7 @@
 // largest, in the belly), oriented origin -> insertion.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <stdexcept>
 #include <string>
@@ -118,10 +118,11 @@ FibreCheckReport checkFibres(const TriangleMesh& surface, const AttachmentPatche
 // Generalised winding number of a closed surface at p: ~1 inside, ~0 outside (any orientation gives |w|).
 double windingNumber(const TriangleMesh& surface, const Eigen::Vector3d& p);
 
-// ASCII legacy VTK polylines with coordinates rounded to `decimals` places (5 = 10 um in metres, 1/50 of the finest
-// voxel used for the bundled muscles): the fibre files are committed, and savePolylinesVtk's 17 significant digits
-// would more than double their size for no useful precision. Checks that failed are written into the file's title
-// line (see recordedFibreCheckFailures in io/mesh_io.hpp), so that whoever loads the file hears of them.
+// ASCII legacy VTK polylines (savePolylinesVtk's ASCII form, io/mesh_io.hpp) with coordinates rounded to `decimals`
+// places, 1..17 (5 = 10 um in metres, 1/50 of the finest voxel used for the bundled muscles): the fibre files are
+// committed, and exact coordinates would more than double their size for no useful precision. Checks that failed are
+// written into the file's title line (see recordedFibreCheckFailures in io/mesh_io.hpp), so that whoever loads the
+// file hears of them.
 void saveFibresVtk(const std::string& path, const std::vector<Polyline>& fibres, int decimals = 5,
                    const std::vector<std::string>& failed_checks = {});
 

@@ -2,7 +2,7 @@
 // benchmarks and tests that measure on real anatomy use them.
 #pragma once
 
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 #include "muscle_deformation/core/scene/joint_trajectory.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 

@@ -2,7 +2,7 @@
 // scene (13 muscles x 64 fibres). Used by benchmarks, the core demo and tests; real anatomy lives in data/.
 #pragma once
 
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 
 #include <vector>
 

@@ -7,7 +7,7 @@
 // costs a few tens of nanoseconds through a Probe, which caches the grid path between nearby queries.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>

@@ -11,10 +11,10 @@
 #include "muscle_deformation/core/collision/collision_broad_phase.hpp"
 #include "muscle_deformation/core/collision/collision_settings.hpp"
 #include "muscle_deformation/core/collision/collision_spheres.hpp"
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
-#include "muscle_deformation/core/model/model.hpp"
-#include "muscle_deformation/core/solvers/contact_set.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
+#include "muscle_deformation/core/collision/contact_set.hpp"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>

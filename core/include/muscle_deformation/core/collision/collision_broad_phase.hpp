@@ -3,7 +3,7 @@
 #pragma once
 
 #include "muscle_deformation/core/collision/collision_settings.hpp"
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <Eigen/Core>
 

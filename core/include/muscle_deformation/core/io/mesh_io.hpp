@@ -1,8 +1,9 @@
 // Reading surfaces and fibre polylines from the file formats anatomy tools produce.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
+#include <cstddef>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -42,8 +43,19 @@ std::vector<Polyline> loadPolylines(const std::string& path, double scale_to_met
 inline constexpr char kFibreChecksFailedMark[] = "fibre checks failed: ";
 std::string recordedFibreCheckFailures(const std::string& path);
 
-// Writers used by tools and tests: binary legacy VTK POLYDATA with LINES (coordinates read back exactly), binary STL.
-void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines);
+// The longest title line a legacy VTK file may have (the format's readers stop there).
+inline constexpr std::size_t kLegacyVtkTitleLimit = 255;
+
+// The polyline writer (fibres and any other lines, e.g. saveFibresVtk's files): legacy VTK POLYDATA with LINES, with
+// `title` as its title line (one line of at most kLegacyVtkTitleLimit characters). decimals 0: binary, coordinates
+// read back exactly. decimals 1..17: ASCII with every coordinate rounded to that many decimal places and trailing
+// zeros dropped (small, diffable files such as the committed fibres). Throws std::invalid_argument for a bad title or
+// decimals, and std::runtime_error naming the file for a line of fewer than 2 or non-finite points or a failed write.
+inline constexpr char kDefaultPolylinesVtkTitle[] = "muscle_deformation polylines (metres)";
+void savePolylinesVtk(const std::string& path, const std::vector<Polyline>& lines,
+                      const std::string& title = kDefaultPolylinesVtkTitle, int decimals = 0);
+
+// Binary STL, for tools and tests.
 void saveTriangleMeshStl(const std::string& path, const TriangleMesh& mesh);
 
 }  // namespace muscle_deformation

@@ -4,7 +4,7 @@
 // `repair_surfaces: true` and generate_fibres turn it on, and every change is reported.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <string>
 

@@ -1,7 +1,7 @@
 // Turning fibre polylines into particles (GRAPP 2014 section 3.1).
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <cstdint>
 #include <vector>

@@ -1,10 +1,8 @@
 // Building the mass-spring system of a set of muscles around a set of bones (pre-processing of thesis 4.4.2).
 #pragma once
 
-#include "muscle_deformation/core/collision/bone_distance_field.hpp"
-#include "muscle_deformation/core/collision/collision_spheres.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include <cstdint>
@@ -87,22 +85,6 @@ struct ModelBuildReport {
 // particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report = nullptr);
-
-// The model a collision-aware solve runs on, final when returned: the system with its collision radii shrunk so that
-// the rest pose is free of contacts (clearRestOverlaps), and each bone's proxy in its rest frame: its sphere set
-// (boneSpheresOneRing) or its signed distance field, as `collision.bone_proxy` says. With fields only muscle-muscle
-// overlaps are cleared: the field keeps each particle no deeper than it lies at rest instead of shrinking anything.
-// `prebuilt_fields` (one per bone, built with collision.bone_field) are used instead of building them again.
-// Build solvers after it, never before: they precompute from the radii.
-struct CollisionReadyModel {
-  MassSpringSystem system;
-  std::vector<SphereSet> bone_spheres;  // per bone, in the order of `bones` (sphere proxy; empty with fields)
-  std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields;  // per bone (field proxy; empty with spheres)
-  RestOverlapSummary rest_overlaps;
-};
-CollisionReadyModel buildCollisionReadyModel(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
-                                             const ModelSettings& settings, const CollisionSettings& collision,
-                                             ModelBuildReport* report = nullptr, const BoneFields& prebuilt_fields = {});
 
 // A bare system from given particles and springs (no fibres, no bones), for tests and small analytic set-ups:
 // uniform mass, stiffness = material / rest length, no particle fixed or boundary, zero radius.

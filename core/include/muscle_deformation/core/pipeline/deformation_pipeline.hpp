@@ -5,7 +5,7 @@
 
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/simulation_settings.hpp"
 #include "muscle_deformation/core/surfaces/surface_bone_contact.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
@@ -18,6 +18,10 @@ namespace muscle_deformation {
 
 struct PipelineSettings {
   SimulationSettings simulation;
+  // Worker threads of the frame: the solver's sweeps, then the surface stages and metrics, which run after the solve and
+  // so have the cores the sweeps had. 0 = every core; -1 = the solver measures one or every core as it runs
+  // (BlockDescentSolver::kThreadsMeasured), the surface stages then take every core.
+  int threads = 0;
   SkinningSettings skinning;
   // Skinned surface vertices inside a bone are moved out to its surface (SurfaceBoneContact), before the volume
   // constraint, which never moves one in.
@@ -80,6 +84,12 @@ struct FrameResult {
   const SurfaceSkinning* skinning_ = nullptr;
 };
 
+// What a frame's consumers want computed beside the particles.
+struct FrameWants {
+  bool surfaces = false;
+  bool metrics = false;
+};
+
 // The fidelity figures (the surface metrics and the particles' depth in bone) by their ~stats names, as an absence
 // names them.
 inline constexpr const char* kFidelityFigures =
@@ -98,6 +108,8 @@ struct AbsentMetric {
   std::string describe() const { return figures + ": " + reason + "; to measure, " + remedy; }
 };
 
+class MuscleSimulation;  // the pipeline's own (core/src/pipeline/muscle_simulation.hpp)
+
 class DeformationPipeline {
  public:
   // Builds the simulation (throws ModelError / std::invalid_argument on bad settings or input). Skinning and metrics
@@ -109,25 +121,35 @@ class DeformationPipeline {
   // The frame result views the pipeline's own arrays: a copy or a move would leave it looking at the old ones.
   DeformationPipeline(const DeformationPipeline&) = delete;
   DeformationPipeline& operator=(const DeformationPipeline&) = delete;
+  ~DeformationPipeline();
 
-  // Solves one pose. Surfaces are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`.
-  // `frame_interval_s`: time since the pose a warm start continues (MuscleSimulation::solve).
-  // The result is the pipeline's own (see FrameResult): the next solve overwrites it.
-  const FrameResult& solve(const Pose& pose, StartMode start, bool want_surfaces, bool want_metrics,
-                           double frame_interval_s = kNominalFrameIntervalS);
-  // The same from bone transforms (boneTransformsOf(simulation().bones(), pose)), computed once per frame by callers
-  // that also need them (the stream policy, the service's warm-start check).
-  const FrameResult& solve(const BoneTransforms& transforms, StartMode start, bool want_surfaces, bool want_metrics,
-                           double frame_interval_s = kNominalFrameIntervalS);
-  void reset() { simulation_->reset(); }
-  // How later solves stop (see MuscleSimulation::setStopping); nothing is rebuilt.
-  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
-                   const SolveLimits& limits) {
-    simulation_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
-  }
+  // Solves one pose given as bone transforms (boneTransformsOf(bones(), pose)), stopping as `stopping` says. Surfaces
+  // are skinned if `want_surfaces` or `want_metrics`; metrics measured if `want_metrics`. `frame_interval_s`: time
+  // since the pose a warm start continues (weighs the tissue drag). The result is the pipeline's own (see
+  // FrameResult): the next solve overwrites it.
+  const FrameResult& solve(const BoneTransforms& transforms, StartMode start, const FrameStopping& stopping,
+                           bool want_surfaces, bool want_metrics, double frame_interval_s = kNominalFrameIntervalS);
+  // More sweeps of the last frame's solve at the same pose and tissue (the answer it was solving for), within
+  // `stopping`: a frame a budget left unfinished, continued while the skeleton holds still. Throws std::logic_error
+  // when there is no previous frame to continue.
+  const FrameResult& refine(const FrameStopping& stopping, bool want_surfaces, bool want_metrics);
+  void reset();  // forget the previous result: the next solve starts cold
+  // Continue from a known result instead of the last solve's (benchmarks start compared streams from one converged
+  // frame): the next warm solve starts from `position` solved at `transforms`. Throws std::invalid_argument on a size
+  // mismatch or a non-finite position.
+  void continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position);
 
-  const MuscleSimulation& simulation() const { return *simulation_; }
-  const std::vector<Bone>& bones() const { return simulation_->bones(); }  // what a pose's bone transforms are of
+  // The model and its state as the last solve left them.
+  const MassSpringSystem& system() const;
+  const ParticleState& state() const;
+  const BoneTransforms& boneTransforms() const;  // of the last solve (or continueFrom)
+  const std::vector<Muscle>& muscles() const;
+  const ModelBuildReport& buildReport() const;
+  const CollisionWorld* collisionWorld() const;
+  // The bones' distance fields (bone_proxy distance_field; empty otherwise), shared with another pipeline of the scene.
+  const BoneFields& boneFields() const;
+  const RestOverlapSummary& restOverlaps() const;
+  const std::vector<Bone>& bones() const;  // what a pose's bone transforms are of
   const std::vector<MuscleDescription>& descriptions() const { return descriptions_; }
   const PipelineSettings& settings() const { return settings_; }
   const FrameResult& lastFrame() const { return frame_; }
@@ -149,10 +171,10 @@ class DeformationPipeline {
   std::string describe() const;
 
  private:
+  // The surfaces and metrics of the frame the simulation just solved.
+  const FrameResult& finishFrame(const FrameStopping& stopping, bool want_surfaces, bool want_metrics);
   AbsentMetric residualAbsence() const;
-  // Threads of the surface stages and metrics: the block-descent solver's `threads` (0 and -1: every core), within the
-  // solve limits' thread cap. They run after the solve, so they have the cores the sweeps had.
-  int surfaceThreads() const;
+
   AbsentMetric collisionAbsence() const;
   AbsentMetric metricsAbsence() const;
 

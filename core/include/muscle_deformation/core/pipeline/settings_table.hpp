@@ -5,7 +5,7 @@
 #pragma once
 
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
-#include "muscle_deformation/core/pipeline/pose_stream.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 
 #include <functional>
 #include <type_traits>
@@ -17,7 +17,7 @@ namespace muscle_deformation {
 
 struct CoreSettings {
   PipelineSettings pipeline;
-  PoseStreamSettings stream;
+  StreamSessionSettings stream;  // the stream's protocol and how its frames stop
 };
 
 using SettingValue = std::variant<bool, int, double, std::string>;
@@ -151,9 +151,6 @@ CoreSettings nodeDefaultSettings();
 
 // A YAML scalar typed as rosparam types the same file: true/false, an integer, a floating-point number, else the text.
 SettingValue settingValueOfYamlScalar(const std::string& text);
-
-// The table holds one set of stopping parameters (stopping_rule, max_iterations, tolerances, time budget) in
-// SimulationSettings::stopping; shareStoppingRule (pipeline/simulation.hpp) makes them drive whichever solver runs.
 
 // Reads every setting of the table that the YAML map at `path` holds (other keys are left to their owners) into
 // `settings`. Throws std::invalid_argument naming the file, the key and the problem.

@@ -4,7 +4,7 @@
 // the scene YAML are relative to the YAML's own folder, so a scene directory can be moved or shared as it is.
 #pragma once
 
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 #include "muscle_deformation/core/scene/skeleton.hpp"
 
 #include <Eigen/Geometry>
@@ -51,6 +51,10 @@ struct SceneDescription {
   // and origin apply to it as they did to the original.
   std::map<std::string, std::string> bone_surfaces;
 };
+
+// Descriptions that only name the muscles (default colour, no files, no tags): for muscles made in code (the synthetic
+// thigh, tests) that a pipeline needs described.
+std::vector<MuscleDescription> describedByName(const std::vector<Muscle>& muscles);
 
 // Reads the YAML; every missing or malformed key is a SceneError naming the file and the line.
 SceneDescription loadSceneDescription(const std::string& yaml_path);

@@ -22,7 +22,7 @@
 #pragma once
 
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
-#include "muscle_deformation/core/solvers/contact_set.hpp"
+#include "muscle_deformation/core/collision/contact_set.hpp"
 #include "muscle_deformation/core/solvers/soft_body_solver.hpp"
 
 #include <Eigen/Core>
@@ -33,9 +33,6 @@
 #include <vector>
 
 namespace muscle_deformation {
-
-// The largest predict_extrapolation accepted (BlockDescentSettings).
-inline constexpr double kMaxPredictExtrapolation = 0.75;
 
 struct BlockDescentSettings {
   // Contact stiffness relative to the springs: kc = contact_stiffness_scale x (material constant / median collision
@@ -59,47 +56,19 @@ struct BlockDescentSettings {
   // it through the tissue that holds it (see the formula above). 0 = none: the quasi-static equilibrium of springs and
   // contacts alone (the analytic cases of the tests); the node's default is in nodeDefaultSettings().
   double tissue_relaxation_s = 0.0;
-  // A warm frame starts from the previous frame's own correction (its answer minus where the tissue carried it)
-  // carried on with the bones, rather than from where the tissue carries it: over a smooth motion one frame's
-  // correction is close to the next one's, so the sweeps start near the answer. The answer does not change (the drag
-  // still pulls towards the carried position); MuscleSimulation applies it.
-  bool predict_start = true;
-  // How much of the correction's change over the last frame the predicted start carries on besides the correction
-  // itself: y + c_n + e (c_n - c_(n-1)). Over a gait the correction drifts smoothly, so a start that follows the
-  // drift begins nearer the answer (the answer still does not change). 0.5, measured on the bundled gait with one
-  // sweep a frame: 0.54 instead of 0.73 mm RMS from the converged stream of all 26 muscles over a cycle, 0.92 instead
-  // of 1.35 mm over three cycles of thigh13; 1 (straight linear extrapolation) fed its own error back and diverged.
-  double predict_extrapolation = 0.5;
-  // Worker threads for the sweeps. Positions do not depend on it. 0 = every core. -1 = one thread or every core,
-  // whichever is faster as measured while the solver runs (both are tried first, and the slower again every
-  // kThreadProbeInterval sweeps): every core stops paying once another process holds one all the time, as a colour's
-  // threads then wait at its barrier for the descheduled one. Measured on 2 cores, all 26 bundled muscles, one sweep a
-  // frame: quiet, both 11.3-11.7 ms; beside rviz rendering in software (make demo) every core 16.2 ms against 18.8 ms
-  // measured (the estimate, one probe per 32 sweeps, follows rviz's bursts); beside a busy loop on one core 19.3
-  // against 17.7 ms. Viewing in rviz on the same machine is the product's common case, hence every core by default.
-  int threads = 0;
-  static constexpr int kThreadsMeasured = -1;  // the `threads` value for the measured choice
-
-  StoppingRule stopping_rule = StoppingRule::force_residual;
-  int max_iterations = 100;                // sweeps, cap for every rule
-  double residual_tolerance = 1e-3;        // force_residual: relative RMS residual (x material constant)
-  double displacement_tolerance_m = 1e-6;  // displacement: mean free-particle displacement of a sweep
-  double time_budget_ms = 16.0;            // time_budget: no sweep is started that would end past it
-  // time_budget, warm frames (MuscleSimulation applies it): sweeps a frame may take past its budget while the collision
-  // stage measures a bone contact deeper than the median collision radius (a particle of median size with its centre
-  // in the bone). A smooth stream never needs them (the bundled gait: 0.03 mm at most); a warm frame after a jump does
-  // (thigh13, rest to 90 deg hip flexion in one frame: 1.71 mm after the one sweep its budget fits, 0.19 mm after a
-  // second).
-  int deep_contact_sweeps = 0;
-  SolveLimits limits;                      // for every rule
+  // Incompressibility: each muscle's volume term (volume_term.hpp) has stiffness k_m = volume_stiffness x material
+  // constant x (skin particles) / (rest volume x rest skin area), so that a relative volume change e pulls each particle
+  // the skin follows with about volume_stiffness x e of the springs' material constant. 0 = none (the seeds' model);
+  // the pipeline supplies the volume (the skinned surface's) when this is above 0.
+  double volume_stiffness = 0.0;
 };
 
 // Returns an empty string when the settings are usable, otherwise what is wrong.
 std::string validate(const BlockDescentSettings& settings);
 
-// The threads a parallel part runs on: settings.threads when positive, otherwise every core (0, and -1 before a
-// measurement chooses), at most what settings.limits.max_threads allows now.
-int parallelThreads(const BlockDescentSettings& settings);
+// The threads a parallel part runs on: `threads` when positive, otherwise every core (0, and -1 before a measurement
+// chooses), at most what limits.max_threads allows now.
+int parallelThreads(int threads, const SolveLimits& limits);
 // `threads` within the cap SolveLimits::max_threads holds now (none or <= 0: no cap).
 int cappedThreads(int threads, const SolveLimits& limits);
 
@@ -111,18 +80,34 @@ double relativeSpringResidual(const MassSpringSystem& system, const Eigen::Matri
 class BlockDescentSolver final : public SoftBodySolver {
  public:
   SolverKind kind() const override { return SolverKind::block_descent; }
+  // Worker threads of the sweeps. Positions do not depend on them. 0 = every core. kThreadsMeasured (-1) = one thread
+  // or every core, whichever is faster as measured while the solver runs (both are tried first, and the slower again
+  // every kThreadProbeInterval sweeps): every core stops paying once another process holds one all the time, as a
+  // colour's threads then wait at its barrier for the descheduled one. Measured on 2 cores, all 26 bundled muscles,
+  // one sweep a frame: quiet, both 11.3-11.7 ms; beside rviz rendering in software (make demo) every core 16.2 ms
+  // against 18.8 ms measured (the estimate, one probe per 32 sweeps, follows rviz's bursts); beside a busy loop on one
+  // core 19.3 against 17.7 ms. Viewing in rviz on the same machine is the product's common case, hence every core by
+  // default.
+  static constexpr int kThreadsMeasured = -1;
   // Colours the spring graph and packs each particle's springs (once). Throws std::invalid_argument on invalid
-  // settings.
-  BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings);
+  // settings or threads below kThreadsMeasured.
+  BlockDescentSolver(const MassSpringSystem& system, BlockDescentSettings settings, int threads = 0);
 
-  // Sweeps until the stopping rule is met. Fixed particles keep the positions `state` holds on entry. Contacts come
+  // Sweeps until `stopping` is met (any rule). Fixed particles keep the positions `state` holds on entry. Contacts come
   // from the query set with setContactQuery (none without one); `after_update` runs after every sweep like the other
   // solvers' collision hook (normally empty: contacts are in the solve). A non-finite result puts the entry state back
   // and reports `diverged`.
-  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
-  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
-                   const SolveLimits& limits) override;
+  // The solve has `converged` when its last full sweep's force residual lies below stopping.residual_tolerance,
+  // whatever rule ended it.
+  SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
+                   const AfterUpdateHook& after_update = {}) override;
   bool solvesContacts() const override { return true; }
+  bool dragsTissue() const override { return settings_.tissue_relaxation_s > 0; }
+  // The muscles' volume term (volume_term.hpp) joins the frame energy: evaluated before every sweep, each particle's
+  // step takes its muscle's volume as it stands after the colours before it.
+  bool keepsVolume() const override { return true; }
+  void setVolumeTerm(VolumeTerm term) override;
+  const VolumeTerm& volumeTerm() const { return volume_; }
   // Clamped to [kMinFrameIntervalS, kMaxFrameIntervalS] (a pose stream's gaps, whatever their cause, give the tissue
   // no more than a tenth of a second to relax in); kNominalFrameIntervalS until set.
   void setFrameInterval(double seconds) override;
@@ -130,7 +115,6 @@ class BlockDescentSolver final : public SoftBodySolver {
   double frameInterval() const { return frame_interval_s_; }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
 
-  void setResidualTolerance(double relative_residual);
   // The relative RMS net force (springs, contacts and tissue drag towards state.carried_position when it is set, as
   // this solver models them) on the free particles at `state`,
   // whichever solver produced it: the common measure of how far a state is from the equilibrium. Does not change the
@@ -139,10 +123,10 @@ class BlockDescentSolver final : public SoftBodySolver {
   const BlockDescentSettings& settings() const { return settings_; }
   int colourCount() const { return static_cast<int>(colour_begin_.size()) - 1; }
   int threadCount() const { return thread_count_; }
-  // Threads of the next full sweep: threadCount(), or with threads = 0 one or every core as measured, within the cap of
-  // SolveLimits::max_threads.
-  int sweepThreads() const;
-  // With threads = 0, the slower of one thread and every core is tried again after this many sweeps on the faster.
+  // Threads of the next full sweep: threadCount(), or with kThreadsMeasured one or every core as measured, within the
+  // cap of `limits` (SolveLimits::max_threads).
+  int sweepThreads(const SolveLimits& limits = {}) const;
+  // With kThreadsMeasured, the slower of one thread and every core is tried again after this many sweeps on the faster.
   static constexpr int kThreadProbeInterval = 32;
   double materialConstant() const { return material_constant_n_; }
   double contactStiffness() const { return contact_stiffness_; }  // the floor; per particle it may be higher
@@ -162,10 +146,10 @@ class BlockDescentSolver final : public SoftBodySolver {
   // Net force (minus the gradient) on every particle (zero for fixed ones) and the inverse of each free particle's
   // 3 x 3 block of the projected Hessian, by particle index.
   void frameForces(const Eigen::Matrix3Xd& position, Eigen::Matrix3Xd& force,
-                   std::vector<Eigen::Matrix3d>& inverse_blocks) const;
+                   std::vector<Eigen::Matrix3d>& inverse_blocks);
   // The projected Hessian at `position` times `direction` (rows of fixed particles zero; their directions unused).
   void frameHessianTimes(const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& direction,
-                         Eigen::Matrix3Xd& product) const;
+                         Eigen::Matrix3Xd& product);
   const std::vector<std::int32_t>& freeParticles() const { return free_particles_; }
   double contactMargin() const { return contact_margin_m_; }
   // Whether a particle's step is bounded by the contact margin (it collides).
@@ -206,8 +190,9 @@ class BlockDescentSolver final : public SoftBodySolver {
 
   const MassSpringSystem& system_;
   BlockDescentSettings settings_;
+  int threads_setting_ = 0;  // as constructed: > 0, 0 (every core) or kThreadsMeasured
   int thread_count_ = 1;
-  // threads = 0: running estimates of a full sweep's wall time on one thread [0] and on every core [1] (ms, 0 = not
+  // kThreadsMeasured: running estimates of a full sweep's wall time on one thread [0] and on every core [1] (ms, 0 = not
   // measured yet), and full sweeps since the slower one last ran.
   double sweep_ms_[2] = {0, 0};
   int sweeps_since_probe_ = 0;
@@ -237,6 +222,23 @@ class BlockDescentSolver final : public SoftBodySolver {
                                                // bone field), so with contacts queried its step is cut to the margin
 
   Eigen::VectorXd residual_squared_, step_length_;  // per particle, of the current sweep
+  VolumeTerm volume_;                  // empty: no volume term
+  std::vector<double> volume_now_;     // per muscle, during a sweep (updated colour by colour)
+  Eigen::Matrix3Xd volume_gradient_;   // per particle, at the start of the sweep
+  Eigen::VectorXd volume_change_;      // per particle: g . step of its visit in the current colour
+  Eigen::Matrix3Xd volume_step_;       // per particle with a volume gradient: its step without the volume term
+  Eigen::Matrix3Xd volume_inverse_gradient_;  // per particle: H_p^-1 g_p (its block without the volume term)
+  std::vector<std::uint8_t> volume_pending_;  // per particle: its step waits for its colour's volume solve
+  std::vector<double> colour_a_, colour_b_;   // per muscle, scratch of applyVolumeSteps
+  Eigen::VectorXd step_bound_;         // per particle: the longest step allowed this visit (< 0: none)
+  // The particle's step cut to its bound (the contact margin plus its starting depth).
+  void limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const;
+  // The volume term's share of the steps of one colour's particles (those with a volume gradient), then their moves.
+  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end, int threads);
+  // The volume term's value and gradient at `position` into volume_now_ / volume_gradient_ (nothing when off).
+  void evaluateVolume(const Eigen::Matrix3Xd& position);
+  // sum_m k_m / 2 (V_m - V_m,rest)^2 for the volumes in volume_now_.
+  double volumeEnergy() const;
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
   double last_residual_ = 0.0;
 };

@@ -63,12 +63,6 @@ struct LocalGlobalSettings {
   // matrix; the curvature pairs of the last `lbfgs_history` steps correct it along the soft shape changes (bending of
   // long muscles) where the plain iteration crawls. 0 = plain local/global iterations. Excludes Chebyshev.
   int lbfgs_history = 0;
-
-  StoppingRule stopping_rule = StoppingRule::displacement;
-  int max_iterations = 100;                // cap for every rule
-  double displacement_tolerance_m = 1e-6;  // mean free-particle displacement of an iteration
-  double time_budget_ms = 16.0;
-  SolveLimits limits;                      // for every rule
 };
 
 // Checks settings; returns an empty string when valid, otherwise what is wrong.
@@ -95,16 +89,14 @@ class LocalGlobalSolver final : public SoftBodySolver {
   // std::runtime_error if the factorisation fails.
   LocalGlobalSolver(const MassSpringSystem& system, LocalGlobalSettings settings);
 
-  // Iterates until the stopping rule is met; `after_update` is called after every global step (collision). Fixed
+  // Iterates until `stopping` is met; `after_update` is called after every global step (collision). Fixed
   // particles keep the positions `state` holds on entry (the pose): only the right-hand side depends on them, so the
   // factorisation is reused across solves. Allocates nothing per iteration. The iteration is implicit and needs no
   // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
   // stats say `diverged`.
-  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
-
-  // Changes how later solves stop (rule, iteration cap, tolerances, limits); the factorisation is kept.
-  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
-                   const SolveLimits& limits) override;
+  // Any stopping rule but force_residual, which this solver does not measure.
+  SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
+                   const AfterUpdateHook& after_update = {}) override;
 
   const LocalGlobalSettings& settings() const { return settings_; }
   int factorisations() const { return factorisations_; }
@@ -139,13 +131,15 @@ class LocalGlobalSolver final : public SoftBodySolver {
   template <bool kWithEnergy>
   double addProjections(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& rhs) const;
   // The quasi-Newton iteration loop of solve(); fixed_rhs_ must be set for the pose.
-  void quasiNewtonIterations(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
+  void quasiNewtonIterations(ParticleState& state, const StoppingSettings& stopping,
+                             const AfterUpdateHook& after_update, SolveStats& stats,
                              std::chrono::steady_clock::time_point solve_start);
   // (L + W)^-1 rhs with the prefactored LDL^T, the three coordinates carried through one pass over the factor
   // (Eigen's solve makes one pass per right-hand side, and the passes are bound by reading the factor).
   void solvePrefactored(const Eigen::MatrixXd& rhs, Eigen::MatrixXd& result);
   // Common end of a solve: stopping flag, time, spring metrics.
-  SolveStats finishSolve(ParticleState& state, SolveStats& stats, std::chrono::steady_clock::time_point solve_start) const;
+  SolveStats finishSolve(ParticleState& state, const StoppingSettings& stopping, SolveStats& stats,
+                         std::chrono::steady_clock::time_point solve_start) const;
   // Free particles' rows of `free` written into `position`.
   void scatterFree(const Eigen::MatrixXd& free, Eigen::Matrix3Xd& position) const;
   void gatherFree(const Eigen::Matrix3Xd& position, Eigen::MatrixXd& free) const;

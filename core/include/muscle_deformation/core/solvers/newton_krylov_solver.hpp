@@ -28,22 +28,24 @@ std::string validate(const NewtonKrylovSettings& settings);
 class NewtonKrylovSolver final : public SoftBodySolver {
  public:
   // `energy` settings: the block-descent settings that define the frame energy (contact stiffness and margin, tissue
-  // drag, threads) and how a solve stops (rule, caps, tolerances). Throws std::invalid_argument on invalid settings.
-  NewtonKrylovSolver(const MassSpringSystem& system, const BlockDescentSettings& energy, NewtonKrylovSettings settings);
+  // drag); `threads` as BlockDescentSolver's. Throws std::invalid_argument on invalid settings.
+  NewtonKrylovSolver(const MassSpringSystem& system, const BlockDescentSettings& energy, NewtonKrylovSettings settings,
+                     int threads = 0);
 
   SolverKind kind() const override { return SolverKind::newton_krylov; }
-  // Newton steps until the stopping rule is met (force_residual, iterations, displacement or time_budget; caps and
-  // limits as the other solvers). Each step: contacts gathered at the current state, the projected Hessian solved by
+  // Newton steps until `stopping` is met (force_residual, iterations, displacement or time_budget; caps and limits as
+  // the other solvers); `converged` when the force residual where it ended lies below stopping.residual_tolerance. Each step: contacts gathered at the current state, the projected Hessian solved by
   // preconditioned CG, then a backtracking line search on the frame energy with the contacts listed again within the
   // step's reach when it carries a collidable particle beyond the sweeps' margin. A non-finite result
   // puts the entry state back and reports `diverged`.
-  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
-  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
-                   const SolveLimits& limits) override;
+  SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
+                   const AfterUpdateHook& after_update = {}) override;
   bool solvesContacts() const override { return true; }
+  bool dragsTissue() const override { return energy_.dragsTissue(); }
+  bool keepsVolume() const override { return true; }
+  void setVolumeTerm(VolumeTerm term) override { energy_.setVolumeTerm(std::move(term)); }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
   void setFrameInterval(double seconds) override { energy_.setFrameInterval(seconds); }
-  void setResidualTolerance(double relative_residual) { energy_.setResidualTolerance(relative_residual); }
 
   // Conjugate-gradient iterations of the last solve, over all its Newton steps.
   int lastCgIterations() const { return last_cg_iterations_; }

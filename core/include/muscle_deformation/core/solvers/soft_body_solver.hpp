@@ -3,8 +3,9 @@
 #pragma once
 
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
-#include "muscle_deformation/core/solvers/contact_set.hpp"
+#include "muscle_deformation/core/collision/contact_set.hpp"
 #include "muscle_deformation/core/solvers/solve_control.hpp"
+#include "muscle_deformation/core/solvers/volume_term.hpp"
 
 #include <string>
 
@@ -33,12 +34,12 @@ class SoftBodySolver {
   virtual ~SoftBodySolver() = default;
 
   virtual SolverKind kind() const = 0;
-  // Advances `state` until the stopping rule or a SolveLimits bound is met; `after_update` (the collision stage) runs
-  // after every update. Fixed particles keep the positions `state` holds on entry (the pose).
-  virtual SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) = 0;
-  // Changes how later solves stop (rule, iteration cap, tolerances, limits) without rebuilding anything.
-  virtual void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                           double time_budget_ms, const SolveLimits& limits) = 0;
+  // Advances `state` until `stopping` (its rule, or a bound of its limits) is met; `after_update` (the collision stage)
+  // runs after every update. Fixed particles keep the positions `state` holds on entry (the pose). Throws
+  // std::invalid_argument for a rule the solver cannot evaluate (a force residual it does not measure) or invalid
+  // stopping settings.
+  virtual SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
+                           const AfterUpdateHook& after_update = {}) = 0;
   // Solvers that keep contacts as energy inside their solve (rather than through `after_update`) say so here and take
   // the collision stage's contact query; the others ignore it. `every_particle_collides`: the query lists contacts of
   // interior particles too (a bone distance field), not only of boundary particles with a sphere radius.
@@ -47,6 +48,13 @@ class SoftBodySolver {
   // weigh by it; the others ignore it.
   virtual void setFrameInterval(double /*seconds*/) {}
   virtual void setContactQuery(ContactQuery, bool /*every_particle_collides*/) {}
+  // Whether the answer of a solve includes tissue drag towards state.carried_position (block descent's energy with a
+  // relaxation time): the simulation then sets the carried positions and may predict a start.
+  virtual bool dragsTissue() const { return false; }
+  // Solvers that minimise a frame energy take the muscles' volume term into it (volume_term.hpp); the others ignore it
+  // and say so here.
+  virtual bool keepsVolume() const { return false; }
+  virtual void setVolumeTerm(VolumeTerm) {}
 };
 
 }  // namespace muscle_deformation

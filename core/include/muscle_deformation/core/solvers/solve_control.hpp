@@ -12,6 +12,7 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <string>
 
 namespace muscle_deformation {
 
@@ -35,6 +36,55 @@ struct SolveLimits {
   // cores wait at every barrier of a sweep for one that is descheduled, and a frame takes many times longer.
   const std::atomic<int>* max_threads = nullptr;
 };
+
+// How one solve stops, passed with every solve call: the caller (a stream frame, a single pose, a benchmark) decides,
+// and no solver keeps a rule of its own.
+struct StoppingSettings {
+  StoppingRule rule = StoppingRule::iterations;
+  int max_iterations = 100;                // cap for every rule (exact for `iterations`)
+  double displacement_tolerance_m = 1e-6;  // displacement rule: mean free-particle step of an iteration
+  // force_residual rule: the RMS net force on the free particles below this times the springs' material constant. It is
+  // also what "converged" means for the solvers that measure the residual (block descent, Newton-Krylov), whatever
+  // ended their solve.
+  double residual_tolerance = 1e-3;
+  double time_budget_ms = 16.0;            // time_budget rule: no iteration started that would end past it
+  SolveLimits limits;                      // for every rule
+
+  // Exactly `count` iterations (within the limits).
+  static StoppingSettings afterIterations(int count) {
+    StoppingSettings stopping;
+    stopping.rule = StoppingRule::iterations;
+    stopping.max_iterations = count;
+    return stopping;
+  }
+  // Until the force residual falls below `tolerance`, at most `max_iterations` iterations.
+  static StoppingSettings atResidual(double tolerance, int max_iterations) {
+    StoppingSettings stopping;
+    stopping.rule = StoppingRule::force_residual;
+    stopping.residual_tolerance = tolerance;
+    stopping.max_iterations = max_iterations;
+    return stopping;
+  }
+  // Until the mean step falls below `tolerance_m` and stops growing, at most `max_iterations` iterations.
+  static StoppingSettings atDisplacement(double tolerance_m, int max_iterations) {
+    StoppingSettings stopping;
+    stopping.rule = StoppingRule::displacement;
+    stopping.displacement_tolerance_m = tolerance_m;
+    stopping.max_iterations = max_iterations;
+    return stopping;
+  }
+  // Within `budget_ms` of wall time, at most `max_iterations` iterations.
+  static StoppingSettings withinBudget(double budget_ms, int max_iterations) {
+    StoppingSettings stopping;
+    stopping.rule = StoppingRule::time_budget;
+    stopping.time_budget_ms = budget_ms;
+    stopping.max_iterations = max_iterations;
+    return stopping;
+  }
+};
+
+// Empty when the settings are usable, otherwise what is wrong (a negative cap or tolerance).
+std::string validate(const StoppingSettings& stopping);
 
 // The seeds' stopping rules, evaluated after every iteration; shared by the solvers so they stop alike.
 class StoppingMonitor {

@@ -16,8 +16,10 @@ struct SolverChoice {
   SolverKind kind = SolverKind::verlet;
   VerletSettings verlet;
   LocalGlobalSettings local_global;
-  BlockDescentSettings block_descent;  // also the frame energy and stopping rule of newton_krylov
+  BlockDescentSettings block_descent;  // also the frame energy of newton_krylov
   NewtonKrylovSettings newton_krylov;
+  // Worker threads of block descent and Newton-Krylov (BlockDescentSolver: 0 = every core, -1 = measured choice).
+  int threads = 0;
 };
 
 // Keeps a reference to `system`, which must outlive the solver. Build it after everything that changes the model

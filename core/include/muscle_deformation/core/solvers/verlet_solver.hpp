@@ -32,11 +32,6 @@ struct VerletSettings {
   double dt_min_s = 0.0;       // lower clamp of the adaptive step; 0 = auto (dt_s / 10, as the thesis' 0.04 vs 0.4)
   double damping_ns_per_m = 0; // viscous damping c of eq. 2.14, N s/m; 0 = critical-damping rule (eq. 2.11)
   double damping_scale = 1.0;  // multiplies the critical-damping rule's value
-  StoppingRule stopping_rule = StoppingRule::iterations;
-  int max_iterations = 100;                 // cap for every rule
-  double displacement_tolerance_m = 1e-6;   // for StoppingRule::displacement
-  double time_budget_ms = 16.0;             // for StoppingRule::time_budget
-  SolveLimits limits;                       // for every rule
 };
 
 // Critical-damping rule (thesis eq. 2.11 without its unit-dependent 6-neighbour constant): c = sqrt(4 * k_a * 2m)
@@ -58,15 +53,13 @@ class VerletSolver final : public SoftBodySolver {
 
   VerletSolver(const MassSpringSystem& system, VerletSettings settings);
 
-  // Advances `state` until the stopping rule is met. Fixed particles keep the positions `state` holds on entry.
-  // Allocates nothing per iteration. On divergence (DivergenceMonitor) the state is put back as it was on entry, the
-  // step halved for this and every later solve, and the solve run again, up to kMaxRecoveries times; if every
-  // attempt diverges the state is left as on entry and the stats say so.
-  SolveStats solve(ParticleState& state, const AfterUpdateHook& after_update = {}) override;
-
-  // Changes how later solves stop (rule, iteration cap, tolerances, limits) without rebuilding anything.
-  void setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m, double time_budget_ms,
-                   const SolveLimits& limits) override;
+  // Advances `state` until `stopping` is met (any rule but force_residual, which Verlet does not measure). Fixed
+  // particles keep the positions `state` holds on entry. Allocates nothing per iteration. On divergence
+  // (DivergenceMonitor) the state is put back as it was on entry, the step halved for this and every later solve, and
+  // the solve run again, up to kMaxRecoveries times; if every attempt diverges the state is left as on entry and the
+  // stats say so.
+  SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
+                   const AfterUpdateHook& after_update = {}) override;
 
   // One MSS update (forces, time step, integration) without collision, for benchmarks. Returns the dt used.
   double step(ParticleState& state);
@@ -97,8 +90,8 @@ class VerletSolver final : public SoftBodySolver {
   };
   Integration integrate(ParticleState& state, double dt);
   // One attempt at the solve from the current state; returns false if it diverged.
-  bool attempt(ParticleState& state, const AfterUpdateHook& after_update, SolveStats& stats,
-               std::chrono::steady_clock::time_point solve_start);
+  bool attempt(ParticleState& state, const StoppingSettings& stopping, const AfterUpdateHook& after_update,
+               SolveStats& stats, std::chrono::steady_clock::time_point solve_start);
 
   const MassSpringSystem& system_;
   VerletSettings settings_;

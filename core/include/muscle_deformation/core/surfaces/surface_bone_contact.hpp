@@ -9,7 +9,7 @@
 #pragma once
 
 #include "muscle_deformation/core/collision/bone_distance_field.hpp"
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 
 #include <vector>

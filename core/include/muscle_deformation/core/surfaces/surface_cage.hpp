@@ -2,7 +2,7 @@
 // coordinates (Ju, Schaefer, Warren 2005).
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 
 #include <Eigen/Core>

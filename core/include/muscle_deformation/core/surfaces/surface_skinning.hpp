@@ -13,9 +13,9 @@
 // affine motion of the particles (rigid motion, uniform scaling) moves the surface by exactly that motion.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
-#include "muscle_deformation/core/model/model.hpp"
+#include "muscle_deformation/core/base/anatomy.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/surfaces/surface_cage.hpp"
 
@@ -70,8 +70,13 @@ class MuscleSkin {
   void update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
               Vertices& surface) const;
 
+  // The part of update() that follows the particles: sum_j w_j x_j for every vertex, from `particle_values` (all
+  // particles of the system, e.g. a displacement), without the bone offsets.
+  void linearPart(const Eigen::Matrix3Xd& particle_values, Vertices& out) const;
+
   SkinningMethod method() const { return method_; }
   int muscle() const { return muscle_; }
+  Eigen::Index particleBegin() const { return particle_begin_; }  // the weights' column 0 is this particle
   Eigen::Index vertexCount() const { return weights_.rows(); }
   const Triangles& triangles() const { return triangles_; }
   // Rows: surface vertices; columns: the muscle's particles (muscle-local index, particle - muscle_begin[muscle]).

@@ -1,4 +1,4 @@
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_simulation.hpp"
 
 #include <algorithm>
 #include <stdexcept>
@@ -21,6 +21,7 @@ void addDeepContactSweep(const SolveStats& sweep, SolveStats& frame) {
   frame.max_strain = sweep.max_strain;
   frame.strain_p99 = sweep.strain_p99;
   frame.residual = sweep.residual;
+  frame.converged = sweep.converged;
   frame.contacts = sweep.contacts;
   frame.divergence_recoveries += sweep.divergence_recoveries;
   frame.diverged = sweep.diverged;
@@ -30,25 +31,27 @@ void addDeepContactSweep(const SolveStats& sweep, SolveStats& frame) {
 
 }  // namespace
 
-void shareStoppingRule(SimulationSettings& simulation) {
-  const StoppingSettings& shared = simulation.stopping;
-  VerletSettings& verlet = simulation.verlet;
-  LocalGlobalSettings& local_global = simulation.local_global;
-  BlockDescentSettings& block_descent = simulation.block_descent;
-  verlet.stopping_rule = local_global.stopping_rule = block_descent.stopping_rule = shared.rule;
-  verlet.max_iterations = local_global.max_iterations = block_descent.max_iterations = shared.max_iterations;
-  verlet.displacement_tolerance_m = local_global.displacement_tolerance_m = block_descent.displacement_tolerance_m =
-      shared.displacement_tolerance_m;
-  verlet.time_budget_ms = local_global.time_budget_ms = block_descent.time_budget_ms = shared.time_budget_ms;
-  verlet.limits = local_global.limits = block_descent.limits = shared.limits;
+std::string validate(const StartPrediction& prediction) {
+  if (!(prediction.predict_extrapolation >= 0 && prediction.predict_extrapolation <= kMaxPredictExtrapolation))
+    return "predict_extrapolation must lie in [0, 0.75] (1, linear extrapolation, diverged on the bundled gait)";
+  return {};
+}
+
+std::string validate(const FrameStopping& stopping) {
+  if (const std::string problem = validate(stopping.sweeps); !problem.empty()) return problem;
+  if (stopping.cold_start_iterations < 1) return "cold_start_iterations must be >= 1";
+  if (stopping.deep_contact_sweeps < 0) return "deep_contact_sweeps must be >= 0";
+  return {};
 }
 
 MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
-                                   const BoneFields& bone_fields)
+                                   int threads, const BoneFields& bone_fields)
     : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
   for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
+  if (const std::string problem = validate(settings_.prediction); !problem.empty())
+    throw std::invalid_argument("start prediction: " + problem);
   if (settings_.collisions) {
     CollisionReadyModel model =
         buildCollisionReadyModel(muscles_, bones_, settings_.model, settings_.collision, &build_report_, bone_fields);
@@ -69,10 +72,9 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   // The model is final here (radii shrunk for the rest pose), as the solvers need: they read the sphere radii (the
   // local/global contact weights, the adaptive step's boundary particles). The local/global solver factorises its
   // matrix here, once: it depends on the model and settings, not the pose.
-  solver_ = makeSolver(
-      SolverChoice{settings_.solver_kind, settings_.verlet, settings_.local_global, settings_.block_descent,
-                   settings_.newton_krylov},
-      system_);
+  solver_ = makeSolver(SolverChoice{settings_.solver_kind, settings_.verlet, settings_.local_global,
+                                    settings_.block_descent, settings_.newton_krylov, threads},
+                       system_);
   if (collision_ && solver_->solvesContacts())
     solver_->setContactQuery(
         [this](const ParticleState& state, double margin_m, ContactSet& contacts) {
@@ -99,40 +101,53 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   has_previous_ = true;
 }
 
-void MuscleSimulation::setStopping(StoppingRule rule, int max_iterations, double displacement_tolerance_m,
-                                   double time_budget_ms, const SolveLimits& limits) {
-  solver_->setStopping(rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits);
-  settings_.stopping = StoppingSettings{rule, max_iterations, displacement_tolerance_m, time_budget_ms, limits};
-  shareStoppingRule(settings_);
-}
-
-StoppingSettings MuscleSimulation::runningStopping() const {
-  const auto of = [](const auto& solver) {
-    return StoppingSettings{solver.stopping_rule, solver.max_iterations, solver.displacement_tolerance_m,
-                            solver.time_budget_ms, solver.limits};
-  };
-  switch (settings_.solver_kind) {
-    case SolverKind::verlet:
-      return of(settings_.verlet);
-    case SolverKind::local_global:
-      return of(settings_.local_global);
-    case SolverKind::block_descent:
-    case SolverKind::newton_krylov:  // stops by the block-descent settings, whose energy it minimises
-      return of(settings_.block_descent);
+void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
+  const double scale = settings_.block_descent.volume_stiffness;
+  if (!(scale > 0) || !solver_->keepsVolume()) return;
+  volume_ = std::make_unique<SkinnedVolume>(skinning, system_);
+  // The springs' material constant (median k l0, as the solver's residual is measured in).
+  std::vector<double> material;
+  for (std::size_t s = 0; s < system_.springs.size(); ++s)
+    material.push_back(system_.springs.stiffness[static_cast<Eigen::Index>(s)] *
+                       system_.springs.rest_length[static_cast<Eigen::Index>(s)]);
+  double constant = 1.0;
+  if (!material.empty()) {
+    std::nth_element(material.begin(), material.begin() + static_cast<std::ptrdiff_t>(material.size() / 2), material.end());
+    constant = material[material.size() / 2];
   }
-  return of(settings_.verlet);
+  VolumeTerm term;
+  term.rest_volume_m3 = volume_->restVolumes();
+  for (int m = 0; m < volume_->muscleCount(); ++m) {
+    const double rest = std::abs(volume_->restVolumes()[static_cast<std::size_t>(m)]);
+    const double area = volume_->restAreas()[static_cast<std::size_t>(m)];
+    const int followed = volume_->skinParticleCounts()[static_cast<std::size_t>(m)];
+    term.stiffness.push_back(rest > 0 && area > 0 ? scale * constant * followed / (rest * area) : 0.0);
+  }
+  const SkinnedVolume* volume = volume_.get();
+  const BoneTransforms* transforms = &frame_transforms_;
+  term.evaluate = [volume, transforms](const Eigen::Matrix3Xd& position, std::vector<double>& volumes,
+                                       Eigen::Matrix3Xd& gradients) {
+    volume->evaluate(position, *transforms, volumes, gradients);
+  };
+  term.curvature_times = [volume, transforms](const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& direction,
+                                              const std::vector<double>& weight, Eigen::Matrix3Xd& out) {
+    volume->curvatureTimes(position, *transforms, direction, weight, out);
+  };
+  solver_->setVolumeTerm(std::move(term));
 }
 
-bool MuscleSimulation::tissueDrag() const {
-  return (settings_.solver_kind == SolverKind::block_descent || settings_.solver_kind == SolverKind::newton_krylov) &&
-         settings_.block_descent.tissue_relaxation_s > 0;
+StoppingSettings MuscleSimulation::mainSolveStopping(bool warm, const FrameStopping& stopping) const {
+  if (warm || stopping.sweeps.rule != StoppingRule::time_budget) return stopping.sweeps;
+  StoppingSettings cold = stopping.sweeps;
+  cold.rule = StoppingRule::iterations;
+  cold.max_iterations = std::min(stopping.sweeps.max_iterations, stopping.cold_start_iterations);
+  return cold;
 }
 
-FrameStats MuscleSimulation::solve(const Pose& pose, StartMode start, double frame_interval_s) {
-  return solve(boneTransformsOf(bones_, pose), start, frame_interval_s);
-}
-
-FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start, double frame_interval_s) {
+FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start, const FrameStopping& stopping,
+                                   double frame_interval_s) {
+  if (const std::string problem = validate(stopping); !problem.empty())
+    throw std::invalid_argument("frame stopping: " + problem);
   if (transforms.size() != bones_.size())
     throw std::invalid_argument("pose has " + std::to_string(transforms.size()) + " bone transforms for " +
                                 std::to_string(bones_.size()) + " bones");
@@ -141,14 +156,14 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   FrameStats stats;
   stats.has_collision = collision_ != nullptr;
   stats.warm_started = start == StartMode::warm && has_previous_;
-  const bool drag = tissueDrag();
-  const bool predict = drag && settings_.block_descent.predict_start && stats.warm_started &&
+  const bool drag = solver_->dragsTissue();
+  const bool predict = drag && settings_.prediction.predict_start && stats.warm_started &&
                        correction_.cols() == system_.particleCount();
   ParticleState predicted;
   if (predict) {
     // The previous answer plus its correction, moved with the bones like the answer itself.
     predicted.position = state_.position + correction_;
-    const double extrapolation = settings_.block_descent.predict_extrapolation;
+    const double extrapolation = settings_.prediction.predict_extrapolation;
     if (extrapolation > 0 && previous_correction_.cols() == correction_.cols())
       predicted.position += extrapolation * (correction_ - previous_correction_);
     warmStart(system_, previous_transforms_, transforms, predicted);
@@ -168,51 +183,63 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   }
   solver_->setFrameInterval(stats.warm_started ? frame_interval_s : kNominalFrameIntervalS);
 
-  // A time budget is the real-time contract of a continuing stream. A cold start (the first frame, a discontinuity)
-  // continues nothing: from the rigid pre-transform one budget's sweep leaves particles up to 2 mm inside bone (gait
-  // bag rostest), so it runs a fixed number of iterations instead, once. 10: block descent cold on all 26 bundled
-  // muscles then ends 0.08 mm deep at most in 118 ms (real-time bench), and a frame that long still fits between the
-  // poses of a stream played slower than real time.
-  constexpr int kColdStartIterations = 10;
-  const StoppingSettings stop = runningStopping();
-  const bool cold_under_budget = !stats.warm_started && stop.rule == StoppingRule::time_budget;
-  if (cold_under_budget)
-    solver_->setStopping(StoppingRule::iterations, std::min(stop.max_iterations, kColdStartIterations),
-                         stop.displacement_tolerance_m, stop.time_budget_ms, stop.limits);
+  // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed
+  // number of iterations instead (FrameStopping::cold_start_iterations).
+  frame_transforms_ = transforms;
+  runSolver(transforms, mainSolveStopping(stats.warm_started, stopping), stopping, stats);
+  finishFrame(transforms, drag, false, stats);
+  return stats;
+}
+
+FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
+  if (const std::string problem = validate(stopping); !problem.empty())
+    throw std::invalid_argument("frame stopping: " + problem);
+  if (!has_previous_) throw std::logic_error("refine: there is no finished previous frame to continue");
+  FrameStats stats;
+  stats.has_collision = collision_ != nullptr;
+  stats.warm_started = last_frame_warm_;
+  // The same pose and the same anchor of the tissue drag (state_.carried_position as the frame set it): the answer
+  // stays the frame's, and the sweeps continue from where they stopped.
+  frame_transforms_ = previous_transforms_;
+  runSolver(previous_transforms_, stopping.sweeps, stopping, stats);
+  const BoneTransforms transforms = previous_transforms_;
+  finishFrame(transforms, solver_->dragsTissue(), true, stats);
+  return stats;
+}
+
+void MuscleSimulation::runSolver(const BoneTransforms& transforms, const StoppingSettings& main,
+                                 const FrameStopping& stopping, FrameStats& stats) {
   if (collision_ && solver_->solvesContacts()) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
-    stats.solver = solver_->solve(state_);
+    stats.solver = solver_->solve(state_, main);
     stats.collision = collision_->measure(state_);
     // A warm frame under a time budget whose sweeps left a particle's centre in a bone (a jump, not a smooth stream)
     // gets up to deep_contact_sweeps more, one at a time, each from where the last ended, towards the same answer.
-    const bool deep_contact_guard = stats.warm_started && stop.rule == StoppingRule::time_budget &&
-                                    settings_.solver_kind == SolverKind::block_descent;
-    for (int extra = 0; deep_contact_guard && extra < settings_.block_descent.deep_contact_sweeps &&
-                        median_collision_radius_m_ > 0 &&
+    const bool deep_contact_guard = stats.warm_started && main.rule == StoppingRule::time_budget;
+    StoppingSettings one_sweep = main;
+    one_sweep.rule = StoppingRule::iterations;
+    one_sweep.max_iterations = 1;
+    for (int extra = 0; deep_contact_guard && extra < stopping.deep_contact_sweeps && median_collision_radius_m_ > 0 &&
                         stats.collision.max_penetration_muscle_bone_m > median_collision_radius_m_ &&
                         !stats.solver.diverged && !stats.solver.cancelled && !stats.solver.time_limit_reached;
          ++extra) {
-      solver_->setStopping(StoppingRule::iterations, 1, stop.displacement_tolerance_m, stop.time_budget_ms,
-                           stop.limits);
-      const SolveStats more = solver_->solve(state_);
-      solver_->setStopping(stop.rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
-                           stop.limits);
-      addDeepContactSweep(more, stats.solver);
+      addDeepContactSweep(solver_->solve(state_, one_sweep), stats.solver);
+      ++stats.deep_contact_sweeps;
       stats.collision = collision_->measure(state_);
     }
   } else if (collision_) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
     const AfterUpdateHook resolve = [this](ParticleState& state) { return collision_->resolve(state); };
-    stats.solver = solver_->solve(state_, resolve);
+    stats.solver = solver_->solve(state_, main, resolve);
     stats.collision = collision_->measure(state_);
   } else {
-    stats.solver = solver_->solve(state_);
+    stats.solver = solver_->solve(state_, main);
   }
-  if (cold_under_budget)
-    solver_->setStopping(stop.rule, stop.max_iterations, stop.displacement_tolerance_m, stop.time_budget_ms,
-                         stop.limits);
+}
+
+void MuscleSimulation::finishFrame(const BoneTransforms& transforms, bool drag, bool refinement, FrameStats& stats) {
   // The solvers put a diverged state back as it was on entry, which is finite whenever the previous result was. Should
   // anything still leave a non-finite position, fall back to the rigid pre-transform of the rest shape: finite by
   // construction, and a pose-consistent answer rather than none.
@@ -226,14 +253,19 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   }
   previous_transforms_ = transforms;
   has_previous_ = stats.finite && !stats.solver.diverged;  // never warm-start from a broken state
-  if (drag && stats.warm_started && has_previous_) {
-    previous_correction_ = std::move(correction_);
+  last_frame_warm_ = stats.warm_started && has_previous_;
+  if (drag && last_frame_warm_) {
+    // After a refinement the change of the correction is the refinement's, not a drift of the motion that the next
+    // frame could extrapolate: the next frame carries the correction on without extrapolating.
+    if (refinement)
+      previous_correction_.resize(3, 0);
+    else
+      previous_correction_ = std::move(correction_);
     correction_ = state_.position - state_.carried_position;  // zero for fixed particles: both follow their bone
   } else {
     previous_correction_.resize(3, 0);  // nothing to extrapolate from after a cold start
     correction_.setZero(3, system_.particleCount());
   }
-  return stats;
 }
 
 }  // namespace muscle_deformation

@@ -1,6 +1,6 @@
-#include "muscle_deformation/core/collision/point_index.hpp"
+#include "muscle_deformation/core/base/point_index.hpp"
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <nanoflann.hpp>
 

@@ -1,5 +1,5 @@
 // Basic geometry on triangle meshes and polylines (Eigen only).
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <algorithm>
 #include <cstdint>

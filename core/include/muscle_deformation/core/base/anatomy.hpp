@@ -1,7 +1,7 @@
 // The anatomy the product deforms: rigid bones, muscles with fibres, and a skeleton pose.
 #pragma once
 
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <Eigen/Geometry>
 

@@ -1,0 +1,90 @@
+// What a frame's solve is made of, as the pipeline's callers choose it: the model and solver settings, how a warm
+// frame starts, how a frame's solve stops, and what it reports. The simulation that runs them is the pipeline's own
+// (core/src/pipeline/muscle_simulation.hpp); callers reach it through DeformationPipeline and the sessions.
+#pragma once
+
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/collision/collision_settings.hpp"
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/solvers/solver_factory.hpp"
+
+#include <string>
+
+namespace muscle_deformation {
+
+// The largest predict_extrapolation accepted (StartPrediction).
+inline constexpr double kMaxPredictExtrapolation = 0.75;
+
+// How a warm frame of a solver with tissue drag starts. The answer does not change (the drag still pulls towards where
+// the tissue carries each particle); only where the sweeps begin.
+struct StartPrediction {
+  // Start from the previous frame's own correction (its answer minus where the tissue carried it) carried on with the
+  // bones, rather than from where the tissue carries it: over a smooth motion one frame's correction is close to the
+  // next one's, so the sweeps start near the answer.
+  bool predict_start = true;
+  // How much of the correction's change over the last frame the predicted start carries on besides the correction
+  // itself: y + c_n + e (c_n - c_(n-1)). 0.5, measured on the bundled gait with one sweep a frame: 0.54 instead of
+  // 0.73 mm RMS from the converged stream of all 26 muscles over a cycle, 0.92 instead of 1.35 mm over three cycles of
+  // thigh13; 1 (straight linear extrapolation) fed its own error back and diverged.
+  double predict_extrapolation = 0.5;
+};
+
+struct SimulationSettings {
+  ModelSettings model;
+  SolverKind solver_kind = SolverKind::verlet;  // which solver runs
+  VerletSettings verlet;                        // for SolverKind::verlet
+  LocalGlobalSettings local_global;             // for SolverKind::local_global
+  BlockDescentSettings block_descent;           // for SolverKind::block_descent (and newton_krylov's energy)
+  NewtonKrylovSettings newton_krylov;           // for SolverKind::newton_krylov
+  StartPrediction prediction;                   // warm frames of block_descent / newton_krylov with tissue drag
+  CollisionSettings collision;
+  bool collisions = true;  // false: the MSS alone (for comparisons)
+};
+
+// Empty when the settings are usable, otherwise what is wrong (the parts no solver checks itself).
+std::string validate(const StartPrediction& prediction);
+
+enum class StartMode {
+  cold,  // from the rest shape moved by the rigid pre-transform (the seeds: every pose independent)
+  warm,  // from the previous result moved with the bones' motion since the previous pose (cold if there is none)
+};
+
+// How one frame's solve stops: the solver's rule for its iterations, and what a frame may take beyond it. Passed with
+// every solve; the simulation derives each solver call's rule from it and keeps none.
+struct FrameStopping {
+  StoppingSettings sweeps;
+  // A cold start under a time budget (the first frame, a discontinuity) continues nothing: from the rigid
+  // pre-transform one budget's sweep leaves particles up to 2 mm inside bone (gait bag rostest), so it runs this many
+  // iterations instead (at most sweeps.max_iterations), once. 10: block descent cold on all 26 bundled muscles then
+  // ends 0.08 mm deep at most in 118 ms (real-time bench), and a frame that long still fits between the poses of a
+  // stream played slower than real time.
+  int cold_start_iterations = 10;
+  // time_budget, warm frames of a solver with contacts in its solve: sweeps a frame may take past its budget while the
+  // collision stage measures a bone contact deeper than the median collision radius (a particle of median size with
+  // its centre in the bone). A smooth stream never needs them (the bundled gait: 0.03 mm at most); a warm frame after a
+  // jump does (thigh13, rest to 90 deg hip flexion in one frame: 1.71 mm after the one sweep its budget fits, 0.19 mm
+  // after a second).
+  int deep_contact_sweeps = 0;
+
+  static FrameStopping of(const StoppingSettings& sweeps) {
+    FrameStopping stopping;
+    stopping.sweeps = sweeps;
+    return stopping;
+  }
+};
+
+// Empty when usable, otherwise what is wrong.
+std::string validate(const FrameStopping& stopping);
+
+struct FrameStats {
+  SolveStats solver;         // the solver's: iterations, per-phase times, spring deviation, strain, divergence
+  CollisionStats collision;  // contacts and remaining penetration after the last iteration, when has_collision
+  bool has_collision = false;  // collisions are on, so `collision` was measured (off: its figures mean nothing)
+  bool warm_started = false;
+  bool finite = true;        // every particle position is finite (always, unless the rest shape itself is not)
+  // The solve left non-finite positions despite the solver's own recovery; the state is the rigid pre-transform.
+  bool fell_back_to_pretransform = false;
+  int deep_contact_sweeps = 0;  // sweeps taken past the budget for a deep bone contact (FrameStopping)
+};
+
+}  // namespace muscle_deformation

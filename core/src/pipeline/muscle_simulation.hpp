@@ -1,0 +1,99 @@
+// The pipeline's own simulation: muscles and bones in, a pose in, deformed particles and statistics out. Private to
+// pipeline/: DeformationPipeline, the stream session and the single-pose session drive it; nothing else does.
+#pragma once
+
+#include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/collision/collision_ready_model.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/simulation_settings.hpp"
+#include "muscle_deformation/core/solvers/solver_factory.hpp"
+#include "muscle_deformation/core/surfaces/skinned_volume.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace muscle_deformation {
+
+class MuscleSimulation {
+ public:
+  // Throws ModelError (invalid settings or input) or std::invalid_argument (invalid solver/collision settings).
+  // `threads`: the solver's worker threads (BlockDescentSolver). `bone_fields`: the bones' distance fields already
+  // built (e.g. by another simulation of the same scene), used with bone_proxy distance_field instead of building them
+  // again.
+  MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings, int threads = 0,
+                   const BoneFields& bone_fields = {});
+
+  // Solves the pose given as bone transforms (boneTransformsOf(bones(), pose)). `frame_interval_s`: the time since the
+  // pose a warm start continues (a stream's stamps), which weighs the tissue drag; a cold start uses
+  // kNominalFrameIntervalS.
+  FrameStats solve(const BoneTransforms& transforms, StartMode start, const FrameStopping& stopping,
+                   double frame_interval_s = kNominalFrameIntervalS);
+  // More of the last frame's solve: the same pose and the same pull of the tissue (carried positions), from where the
+  // last solve ended, with `stopping.sweeps` (a time budget as for a warm frame). Throws std::logic_error without a
+  // previous frame.
+  FrameStats refine(const FrameStopping& stopping);
+  void reset();  // forget the previous result: the next solve starts cold
+  // Puts each muscle's volume, as `skinning` skins it, into the solver's frame energy with the stiffness the block
+  // descent settings' volume_stiffness gives (solvers that minimise a frame energy only; the others ignore it). The
+  // skinning must outlive the simulation.
+  void keepVolume(const SurfaceSkinning& skinning);
+  bool keepsVolume() const { return volume_ != nullptr; }
+  const SkinnedVolume* skinnedVolume() const { return volume_.get(); }
+  // Continue from a known result instead of the last solve's: the next warm solve starts from `position` (a state of
+  // this system) solved at `transforms`. Throws std::invalid_argument on a size mismatch or a non-finite position.
+  void continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position);
+
+  const MassSpringSystem& system() const { return system_; }
+  const ParticleState& state() const { return state_; }
+  // The bones' transforms the last solve (or continueFrom) placed them with, indexed like bones().
+  const BoneTransforms& boneTransforms() const { return previous_transforms_; }
+  bool hasPrevious() const { return has_previous_; }
+  const std::vector<Muscle>& muscles() const { return muscles_; }
+  const std::vector<Bone>& bones() const { return bones_; }
+  const ModelBuildReport& buildReport() const { return build_report_; }
+  const SimulationSettings& settings() const { return settings_; }
+  const CollisionWorld* collisionWorld() const { return collision_.get(); }
+  // The bones' distance fields (bone_proxy distance_field; empty otherwise), per bone index: shared with the metrics.
+  const BoneFields& boneFields() const { return bone_fields_; }
+  // Sphere radii shrunk at build time so that the rest pose is free of contacts (clearRestOverlaps).
+  const RestOverlapSummary& restOverlaps() const { return rest_overlaps_; }
+  bool measuresResidual() const { return measuresForceResidual(settings_.solver_kind); }
+
+ private:
+  // The solver's rule for the frame's main solve: a cold start under a time budget runs a fixed number instead.
+  StoppingSettings mainSolveStopping(bool warm, const FrameStopping& stopping) const;
+  // The solver (with the collision stage's contacts or its hook) at `transforms`, then the deep-contact sweeps.
+  void runSolver(const BoneTransforms& transforms, const StoppingSettings& main, const FrameStopping& stopping,
+                 FrameStats& stats);
+  // Finite check (with the pre-transform as the last resort) and what the next warm start continues; `refinement`: the
+  // frame continued the last one (refine()).
+  void finishFrame(const BoneTransforms& transforms, bool drag, bool refinement, FrameStats& stats);
+
+  std::vector<Muscle> muscles_;
+  std::vector<Bone> bones_;
+  SimulationSettings settings_;
+  ModelBuildReport build_report_;
+  RestOverlapSummary rest_overlaps_;
+  MassSpringSystem system_;
+  std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
+  std::unique_ptr<CollisionWorld> collision_;
+  BoneFields bone_fields_;
+  // MassSpringSystem::medianCollisionRadius of the final model, once (FrameStopping::deep_contact_sweeps).
+  double median_collision_radius_m_ = 0;
+
+  std::unique_ptr<SkinnedVolume> volume_;  // keepVolume(); null without a volume term
+  BoneTransforms frame_transforms_;        // the bones of the frame being solved (the volume term's skin reads them)
+
+  ParticleState state_;
+  // The last frame's correction (its answer minus where the tissue carried it; zero after a cold start), which the next
+  // warm start carries on (StartPrediction).
+  Eigen::Matrix3Xd correction_;
+  // The correction of the frame before (for StartPrediction::predict_extrapolation), empty when that frame did not
+  // continue a warm one.
+  Eigen::Matrix3Xd previous_correction_;
+  BoneTransforms previous_transforms_;
+  bool has_previous_ = false;
+  bool last_frame_warm_ = false;  // the last frame continued a warm one (its correction is carried on)
+};
+
+}  // namespace muscle_deformation
