@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <map>
 #include <sstream>
@@ -165,6 +166,49 @@ void findClosestAttachments(const MassSpringSystem& system, Eigen::Index offset,
   }
 }
 
+double diagonalOf(const TriangleMesh& surface) {
+  const AlignedBox box = boundsOf(surface.vertices);
+  return box.empty() ? 0.0 : (box.max - box.min).norm();
+}
+
+// Refuses every bone of an implausible size beside the muscles (kImplausibleBoneSizeRatio), naming each with both
+// sizes and what to check for the direction it is off in.
+void refuseImplausibleBoneSizes(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones) {
+  const BoneScale scale = measureBoneScale(muscles, bones);
+  std::string too_large, too_small, large_links;
+  int large_count = 0, small_count = 0;
+  for (const BoneSize& size : scale.bones) {
+    const bool large = size.ratio >= kImplausibleBoneSizeRatio;
+    if (!large && !(size.ratio <= 1.0 / kImplausibleBoneSizeRatio)) continue;
+    std::ostringstream line;
+    line << std::setprecision(3) << "bone '" << size.bone << "' is " << size.diagonal_m << " m across, ";
+    if (large)
+      line << std::lround(size.ratio) << " times";
+    else
+      line << "1/" << std::lround(1.0 / size.ratio) << " of";
+    line << " the median muscle (" << scale.median_muscle_diagonal_m << " m)";
+    std::string& list = large ? too_large : too_small;
+    list += (list.empty() ? "" : "; ") + line.str();
+    ++(large ? large_count : small_count);
+    if (large) large_links += (large_links.empty() ? "'" : ", '") + size.bone + "'";
+  }
+  if (too_large.empty() && too_small.empty()) return;
+  std::string message = "bone meshes of an implausible size beside the muscles (sizes are bounding-box diagonals; " +
+                        std::to_string(std::lround(kImplausibleBoneSizeRatio)) +
+                        " times larger or smaller is a unit error, not anatomy): ";
+  if (!too_large.empty())
+    message += too_large +
+               (large_count > 1 ? ". Are these meshes in millimetres? Scale them to metres in the <collision> of links "
+                                : ". Is the mesh in millimetres? Scale it to metres in the <collision> of link ") +
+               large_links + " in the URDF: <mesh filename=\"...\" scale=\"0.001 0.001 0.001\"/>";
+  if (!too_large.empty() && !too_small.empty()) message += ". ";
+  if (!too_small.empty())
+    message += too_small + (small_count > 1 ? ". Are these meshes" : ". Is the mesh") +
+               " scaled twice (a URDF scale of 0.001 on a mesh already in metres), or are the muscle surface and fibre "
+               "files in millimetres? Bones and muscles must both be in metres";
+  throw ModelError(message);
+}
+
 // A fibre end to be joined to its bone through a tendon (global particle index before the anchors are inserted).
 struct PendingTendon {
   std::int32_t particle;
@@ -267,6 +311,26 @@ void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTend
 
 }  // namespace
 
+BoneScale measureBoneScale(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones) {
+  BoneScale scale;
+  std::vector<double> muscle_diagonals;
+  for (const Muscle& muscle : muscles) muscle_diagonals.push_back(diagonalOf(muscle.surface));
+  if (!muscle_diagonals.empty()) {
+    const auto middle = muscle_diagonals.begin() + static_cast<std::ptrdiff_t>(muscle_diagonals.size() / 2);
+    std::nth_element(muscle_diagonals.begin(), middle, muscle_diagonals.end());
+    scale.median_muscle_diagonal_m = *middle;
+  }
+  for (const Bone& bone : bones) {
+    BoneSize size;
+    size.bone = bone.name;
+    size.diagonal_m = diagonalOf(bone.surface);
+    size.ratio = scale.median_muscle_diagonal_m > 0 ? size.diagonal_m / scale.median_muscle_diagonal_m
+                                                    : std::numeric_limits<double>::quiet_NaN();
+    scale.bones.push_back(size);
+  }
+  return scale;
+}
+
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report) {
   const auto start = std::chrono::steady_clock::now();
@@ -303,6 +367,8 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     total += static_cast<std::size_t>(samples.position.cols());
     all_samples.push_back(std::move(samples));
   }
+  // Every muscle surface is there and finite: the bones can be measured against them.
+  refuseImplausibleBoneSizes(muscles, bones);
 
   const auto n = static_cast<Eigen::Index>(total);
   system.rest_position.resize(3, n);
