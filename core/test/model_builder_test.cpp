@@ -283,6 +283,7 @@ TEST(ModelBuilder, NoParticleOfTheBundledSceneIsFixedToABoneOtherThanItsMusclesO
   }
   for (const std::string& warning : report.warnings) {
     EXPECT_EQ(warning.find("fibres start nearer"), std::string::npos) << warning;
+    EXPECT_EQ(warning.find("start inside bone"), std::string::npos) << warning;
     std::printf("bundled scene: %s\n", warning.c_str());
   }
 }
@@ -500,6 +501,30 @@ TEST(ModelBuilder, AUrdfMeshInMillimetresWithoutScaleIsRefusedNamingTheLink) {
   EXPECT_CONTAINS(message, "bone 'femur_r' is ");
   EXPECT_CONTAINS(message, "times the median muscle");
   EXPECT_CONTAINS(message, "in the <collision> of link 'femur_r' in the URDF: <mesh filename=\"...\" scale=\"0.001 0.001 0.001\"/>");
+}
+
+TEST(ModelBuilder, AMuscleMostlyInsideABoneIsWarnedAboutNamingMuscleBoneAndFraction) {
+  SmallScene scene = spindleBetweenPlates();
+  // A bone around the middle 80 % of the muscle, as a bone mesh in the wrong place would be.
+  const Eigen::Vector3d low(-0.05, -0.05, 0.02), high(0.05, 0.05, 0.18);
+  scene.bones.push_back({2, "sleeve", makeBoxMesh(low, high)});
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  int inside = 0;
+  for (Eigen::Index i = 0; i < 160; ++i) {
+    const Eigen::Vector3d p = system.rest_position.col(i);
+    inside += (p.array() > low.array()).all() && (p.array() < high.array()).all() ? 1 : 0;
+  }
+  ASSERT_GT(inside, 80);
+  const std::string expected = "muscle 'spindle': " + std::to_string(inside) + " of 160 particles (" +
+                               std::to_string(std::lround(100.0 * inside / 160)) + " %) start inside bone 'sleeve'";
+  const auto warning = std::find_if(report.warnings.begin(), report.warnings.end(),
+                                    [&](const std::string& w) { return w.find("start inside") != std::string::npos; });
+  ASSERT_NE(warning, report.warnings.end()) << "no warning about particles inside a bone";
+  EXPECT_CONTAINS(*warning, expected);
+  EXPECT_EQ(std::count_if(report.warnings.begin(), report.warnings.end(),
+                          [](const std::string& w) { return w.find("start inside") != std::string::npos; }),
+            1);
 }
 
 TEST(RigidPretransform, SameTransformForEveryBoneMovesEveryParticleRigidly) {
