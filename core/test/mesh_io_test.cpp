@@ -306,6 +306,57 @@ TEST(LoadPolylines, ScaleConvertsMillimetresToMetres) {
   EXPECT_DOUBLE_EQ(md::polylineLength(fibres[1]), 0.006);
 }
 
+namespace {
+
+// The three test fibres as ASCII legacy VTK with `coordinate` as the y of point 4 (line 10) and 'nan' as the z of
+// point 6 (line 12), POINTS of type `type`.
+std::string asciiFibresWith(const std::string& name, const std::string& coordinate, const std::string& type = "double") {
+  const std::string path = tempPath(name);
+  std::ofstream(path) << "# vtk DataFile Version 3.0\nthree fibres\nASCII\nDATASET POLYDATA\nPOINTS 8 " << type
+                      << "\n0 0 0\n0 0 1\n0 0 2\n1 0 0\n1 " << coordinate << " 4\n1 3 5\n0 1 nan\n0 1 0.5\n"
+                      << "LINES 3 11\n3 0 1 2\n3 3 4 5\n2 6 7\n";
+  return path;
+}
+
+}  // namespace
+
+// VTK's reader stops at such a token with "Possible mismatch of datasize with declaration"; the loader names the first.
+TEST(LoadPolylines, NonFiniteCoordinateInAsciiVtkNamesFileLineAndPoint) {
+  for (const std::string coordinate : {"nan", "inf", "-inf", "NaN", "Infinity", "1e999"}) {
+    SCOPED_TRACE(coordinate);
+    const std::string path = asciiFibresWith("non_finite.vtk", coordinate);
+    const std::string msg = md::testing::errorMessageOf<md::LoadError>([&] { md::loadPolylines(path); });
+    std::remove(path.c_str());
+    EXPECT_CONTAINS(msg, "non_finite.vtk line 10: point 4 has a NaN or infinite coordinate: '" + coordinate + "'");
+    EXPECT_EQ(msg.find("mismatch"), std::string::npos) << msg;
+  }
+}
+
+TEST(LoadPolylines, CoordinateBeyondTheDeclaredFloatRangeInAsciiVtkNamesLineAndPoint) {
+  const std::string path = asciiFibresWith("beyond_float.vtk", "1e39", "float");
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([&] { md::loadPolylines(path); });
+  std::remove(path.c_str());
+  EXPECT_CONTAINS(msg, "beyond_float.vtk line 10: point 4 has a coordinate beyond the range of float");
+}
+
+TEST(LoadPolylines, NanInBinaryVtkNamesFileAndPoint) {
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadPolylines(data("fibres_nan_binary.vtk")); });
+  EXPECT_CONTAINS(msg, "fibres_nan_binary.vtk: point 4 has a NaN or infinite coordinate");
+}
+
+TEST(LoadPolylines, NanInBinaryVtpNamesFileAndPoint) {
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([] { md::loadPolylines(data("fibres_nan_binary.vtp")); });
+  EXPECT_CONTAINS(msg, "fibres_nan_binary.vtp: point 4 has a NaN or infinite coordinate");
+}
+
+TEST(LoadPolylines, NanInObjNamesFileAndLine) {
+  const std::string path = tempPath("non_finite.obj");
+  std::ofstream(path) << "v 0 0 0\nv 0 0 1\nv 1 nan 0\nl 1 2 3\n";
+  const std::string msg = md::testing::errorMessageOf<md::LoadError>([&] { md::loadPolylines(path); });
+  std::remove(path.c_str());
+  EXPECT_CONTAINS(msg, "non_finite.obj line 3: vertex coordinate 'nan' is not finite");
+}
+
 TEST(SavePolylines, VtkRoundTripIsExact) {
   std::vector<md::Polyline> lines(2);
   lines[0] = md::Polyline::Random(3, 5);
@@ -354,7 +405,8 @@ TEST(LoadErrors, UnknownExtensionListsSupportedFormats) {
 // Every problem is in the LoadError; VTK's readers print nothing of their own.
 TEST(LoadErrors, VtkReadersPrintNothing) {
   for (const char* name : {"bad_vertex.stl", "empty.stl", "bad_coordinates.vtk", "non_numeric.vtk", "wrong_count.vtk",
-                           "truncated_binary.vtk", "bad_points.vtp", "cube_lz4.vtp", "unclosed.vtp", "cube.ply"}) {
+                           "truncated_binary.vtk", "bad_points.vtp", "cube_lz4.vtp", "unclosed.vtp", "cube.ply",
+                           "fibres_nan_binary.vtk", "fibres_nan_binary.vtp"}) {
     ::testing::internal::CaptureStderr();
     ::testing::internal::CaptureStdout();
     EXPECT_THROW(md::loadTriangleMesh(data(name)), md::LoadError) << name;

@@ -1,6 +1,7 @@
 // Building the mass-spring system from muscles and bones, and moving it with the bones.
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/base/point_index.hpp"
+#include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
@@ -11,8 +12,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
 #include <set>
+#include <string>
 
 #ifndef MD_PACKAGE_DIR
 #define MD_PACKAGE_DIR "."
@@ -276,8 +283,31 @@ TEST(ModelBuilder, NoParticleOfTheBundledSceneIsFixedToABoneOtherThanItsMusclesO
   }
   for (const std::string& warning : report.warnings) {
     EXPECT_EQ(warning.find("fibres start nearer"), std::string::npos) << warning;
+    EXPECT_EQ(warning.find("start inside bone"), std::string::npos) << warning;
     std::printf("bundled scene: %s\n", warning.c_str());
   }
+}
+
+// The margin of the bone size rule on real anatomy: every bundled bone beside the median muscle of the whole scene,
+// and beside each muscle alone (a scene that selects only the smallest or only the largest muscle).
+TEST(ModelBuilder, EveryBundledBoneIsFarFromTheImplausibleSizeRatioWhateverTheMuscleSelection) {
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {});
+  const BoneScale scale = measureBoneScale(bundled.scene.muscles, bundled.scene.bones);
+  std::printf("median muscle of the bundled scene: %.3f m across\n", scale.median_muscle_diagonal_m);
+  for (const BoneSize& bone : scale.bones)
+    std::printf("  bone %-10s %.3f m across, %.2f times the median muscle\n", bone.bone.c_str(), bone.diagonal_m,
+                bone.ratio);
+  double smallest = std::numeric_limits<double>::infinity(), largest = 0;
+  for (const Muscle& muscle : bundled.scene.muscles) {
+    for (const BoneSize& bone : measureBoneScale({muscle}, bundled.scene.bones).bones) {
+      smallest = std::min(smallest, bone.ratio);
+      largest = std::max(largest, bone.ratio);
+    }
+  }
+  std::printf("beside any one muscle alone: %.3f to %.1f times\n", smallest, largest);
+  // Ten times inside the refusal on either side, however the muscles are selected.
+  EXPECT_GT(smallest, 10.0 / kImplausibleBoneSizeRatio);
+  EXPECT_LT(largest, kImplausibleBoneSizeRatio / 10.0);
 }
 
 TEST(ModelBuilder, OuterFibresAreBoundaryAndCentralFibresAreNot) {
@@ -420,6 +450,81 @@ TEST(ModelBuilder, DegenerateFibresAreSkippedWithAWarning) {
   buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
   EXPECT_EQ(report.muscles[0].skipped_fibres, 1);
   EXPECT_FALSE(report.warnings.empty());
+}
+
+// A URDF mesh in millimetres without scale="0.001 0.001 0.001" makes a bone 1000 times too large: most particles
+// start inside it, and the model used to build with nothing but a count of them.
+TEST(ModelBuilder, ABoneInMillimetresIsRefusedNamingItsSizeBesideTheMusclesAndTheUrdfScale) {
+  SyntheticScene scene = makeSyntheticThigh(3, 4);
+  ASSERT_EQ(scene.bones[1].name, "femur");
+  scene.bones[1].surface.vertices *= 1000.0;
+  const std::string message = muscle_deformation::testing::errorMessageOf<ModelError>(
+      [&] { buildMassSpringSystem(scene.muscles, scene.bones, smallSettings()); });
+  EXPECT_CONTAINS(message, "bone 'femur' is 422 m across");  // 0.42 m long, 28 mm wide: its diagonal in mm
+  EXPECT_CONTAINS(message, "times the median muscle (0.");
+  EXPECT_CONTAINS(message, "<mesh filename=\"...\" scale=\"0.001 0.001 0.001\"/>");
+  EXPECT_EQ(message.find("'pelvis'"), std::string::npos) << message;
+  EXPECT_EQ(message.find("'tibia'"), std::string::npos) << message;
+}
+
+TEST(ModelBuilder, ABoneAThousandTimesTooSmallIsRefusedNamingItsSizeBesideTheMuscles) {
+  SyntheticScene scene = makeSyntheticThigh(3, 4);
+  scene.bones[1].surface.vertices *= 0.001;
+  const std::string message = muscle_deformation::testing::errorMessageOf<ModelError>(
+      [&] { buildMassSpringSystem(scene.muscles, scene.bones, smallSettings()); });
+  EXPECT_CONTAINS(message, "bone 'femur' is 0.000422 m across, 1/");
+  EXPECT_CONTAINS(message, "of the median muscle (0.");
+  EXPECT_CONTAINS(message, "scaled twice");
+}
+
+// What the node gets from a URDF whose collision mesh is in millimetres and has no scale: loadScene takes the mesh as
+// metres, and the model build refuses the bone, naming its link.
+TEST(ModelBuilder, AUrdfMeshInMillimetresWithoutScaleIsRefusedNamingTheLink) {
+  const std::string package = MD_PACKAGE_DIR;
+  const std::string node_data = package + "/test/data/node";
+  TriangleMesh femur = loadTriangleMesh(node_data + "/meshes/femur.stl");
+  femur.vertices *= 1000.0;
+  const std::string femur_mm = (std::filesystem::temp_directory_path() / "md_model_builder_test_femur_mm.stl").string();
+  saveTriangleMeshStl(femur_mm, femur);
+  std::ifstream file(node_data + "/thigh.urdf");
+  std::string urdf((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  const std::string femur_uri = "package://muscle_deformation/test/data/node/meshes/femur.stl";
+  ASSERT_NE(urdf.find(femur_uri), std::string::npos);
+  urdf.replace(urdf.find(femur_uri), femur_uri.size(), "file://" + femur_mm);
+
+  const SceneDescription description = loadSceneDescription(node_data + "/thigh.yaml");
+  const Scene scene = loadScene(description, Skeleton::fromUrdfString(urdf, "robot_description"),
+                                makeUriResolver({{"muscle_deformation", package}}, package));
+  std::remove(femur_mm.c_str());
+  const std::string message = muscle_deformation::testing::errorMessageOf<ModelError>(
+      [&] { buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{}); });
+  EXPECT_CONTAINS(message, "bone 'femur_r' is ");
+  EXPECT_CONTAINS(message, "times the median muscle");
+  EXPECT_CONTAINS(message, "in the <collision> of link 'femur_r' in the URDF: <mesh filename=\"...\" scale=\"0.001 0.001 0.001\"/>");
+}
+
+TEST(ModelBuilder, AMuscleMostlyInsideABoneIsWarnedAboutNamingMuscleBoneAndFraction) {
+  SmallScene scene = spindleBetweenPlates();
+  // A bone around the middle 80 % of the muscle, as a bone mesh in the wrong place would be.
+  const Eigen::Vector3d low(-0.05, -0.05, 0.02), high(0.05, 0.05, 0.18);
+  scene.bones.push_back({2, "sleeve", makeBoxMesh(low, high)});
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings(), &report);
+  int inside = 0;
+  for (Eigen::Index i = 0; i < 160; ++i) {
+    const Eigen::Vector3d p = system.rest_position.col(i);
+    inside += (p.array() > low.array()).all() && (p.array() < high.array()).all() ? 1 : 0;
+  }
+  ASSERT_GT(inside, 80);
+  const std::string expected = "muscle 'spindle': " + std::to_string(inside) + " of 160 particles (" +
+                               std::to_string(std::lround(100.0 * inside / 160)) + " %) start inside bone 'sleeve'";
+  const auto warning = std::find_if(report.warnings.begin(), report.warnings.end(),
+                                    [&](const std::string& w) { return w.find("start inside") != std::string::npos; });
+  ASSERT_NE(warning, report.warnings.end()) << "no warning about particles inside a bone";
+  EXPECT_CONTAINS(*warning, expected);
+  EXPECT_EQ(std::count_if(report.warnings.begin(), report.warnings.end(),
+                          [](const std::string& w) { return w.find("start inside") != std::string::npos; }),
+            1);
 }
 
 TEST(RigidPretransform, SameTransformForEveryBoneMovesEveryParticleRigidly) {

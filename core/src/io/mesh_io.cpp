@@ -48,6 +48,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <mutex>
 #include <sstream>
 #include <stdexcept>
@@ -495,7 +496,84 @@ TriangleMesh readStl(const std::string& path, double scale) {
 // ---------------------------------------------------------------------------------------------------------------
 // Legacy VTK, VTK XML PolyData and PLY
 
+// Whether `token` is a number that becomes NaN or infinite as a T: 'nan', 'inf', '-inf', 'infinity' (any case) or a
+// number beyond T's range. Not a number at all: false, for the reader to report as it does.
+template <typename T>
+bool notFiniteAs(std::string_view token) {
+  if (!token.empty() && token[0] == '+') token.remove_prefix(1);
+  T value;
+  const auto result = std::from_chars(token.data(), token.data() + token.size(), value);
+  if (result.ptr != token.data() + token.size()) return false;
+  if (result.ec == std::errc()) return !std::isfinite(value);
+  if (result.ec != std::errc::result_out_of_range) return false;
+  // Out of range is either side: beyond T's largest value (infinite for a reader) or below its smallest (zero).
+  long double wide;
+  const auto again = std::from_chars(token.data(), token.data() + token.size(), wide);
+  return again.ec == std::errc() && std::fabs(wide) > std::numeric_limits<T>::max();
+}
+
+// VTK's legacy reader reads ASCII numbers with C++ streams, which take neither 'nan' nor 'inf' (nor a number beyond
+// the range of the POINTS' declared type): it stops at such a coordinate with "Error reading ascii data. Possible
+// mismatch of datasize with declaration", which names neither the point nor the line. So the POINTS of an ASCII file
+// are looked through before VTK reads it, and the first coordinate that is not a finite number of the declared type
+// is refused here, naming its point and line. What this scan does not follow (not an ASCII legacy file, no POINTS,
+// an integer type, a token that is no number) it leaves to VTK's reader, which reports it as before.
+void checkAsciiLegacyPoints(const std::string& path) {
+  const auto upper = [](std::string_view token) {
+    std::string out(token);
+    for (char& ch : out) ch = static_cast<char>(std::toupper(static_cast<unsigned char>(ch)));
+    return out;
+  };
+  {
+    // The third line says ASCII or BINARY; a BINARY file is not read twice (its NaN is read as one, and checkPoints
+    // names the point).
+    std::ifstream in(path, std::ios::binary);
+    std::string first, title, format;
+    if (!std::getline(in, first) || !std::getline(in, title) || !std::getline(in, format)) return;
+    while (!format.empty() && std::isspace(static_cast<unsigned char>(format.back()))) format.pop_back();
+    if (upper(format) != "ASCII") return;
+  }
+  const std::string text = readWholeFile(path);
+  long line = 1;
+  std::size_t at = 0;
+  // The header's three lines (the second, the title, is free text).
+  for (int k = 0; k < 3 && at < text.size(); ++k) {
+    at = text.find('\n', at);
+    at = at == std::string::npos ? text.size() : at + 1;
+    ++line;
+  }
+  long token_line = line;
+  const auto next = [&](std::string_view& token) {
+    while (at < text.size() && std::isspace(static_cast<unsigned char>(text[at]))) {
+      if (text[at] == '\n') ++line;
+      ++at;
+    }
+    const std::size_t start = at;
+    while (at < text.size() && !std::isspace(static_cast<unsigned char>(text[at]))) ++at;
+    token = std::string_view(text.data() + start, at - start);
+    token_line = line;
+    return !token.empty();
+  };
+  std::string_view token;
+  bool found = false;
+  while (!found && next(token)) found = upper(token) == "POINTS";
+  long long count = 0;
+  if (!found || !next(token) || !parseInt(token, count) || count < 0 || !next(token)) return;
+  const std::string type = upper(token);
+  if (type != "FLOAT" && type != "DOUBLE") return;
+  for (long long i = 0; i < 3 * count; ++i) {
+    if (!next(token)) return;
+    const std::string point = "point " + std::to_string(i / 3);
+    if (notFiniteAs<double>(token))
+      failAtLine(path, token_line, point + " has a NaN or infinite coordinate: " + quoted(token));
+    if (type == "FLOAT" && notFiniteAs<float>(token))
+      failAtLine(path, token_line, point + " has a coordinate beyond the range of float, the type its POINTS declare: " +
+                                       quoted(token));
+  }
+}
+
 vtkSmartPointer<vtkPolyData> readLegacyVtk(const std::string& path) {
+  checkAsciiLegacyPoints(path);
   vtkNew<vtkPolyDataReader> reader;
   reader->SetFileName(path.c_str());
   VtkMessages messages(path, "legacy VTK polydata", VtkMessages::Mode::at_once);

@@ -2,13 +2,16 @@
 
 #include "muscle_deformation/core/model/collision_radii.hpp"
 #include "muscle_deformation/core/model/fibre_sampling.hpp"
+#include "muscle_deformation/core/base/inside_test.hpp"
 #include "muscle_deformation/core/base/point_index.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <map>
+#include <memory>
 #include <sstream>
 
 namespace muscle_deformation {
@@ -165,6 +168,119 @@ void findClosestAttachments(const MassSpringSystem& system, Eigen::Index offset,
   }
 }
 
+double diagonalOf(const TriangleMesh& surface) {
+  const AlignedBox box = boundsOf(surface.vertices);
+  return box.empty() ? 0.0 : (box.max - box.min).norm();
+}
+
+// Refuses every bone of an implausible size beside the muscles (kImplausibleBoneSizeRatio), naming each with both
+// sizes and what to check for the direction it is off in.
+void refuseImplausibleBoneSizes(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones) {
+  const BoneScale scale = measureBoneScale(muscles, bones);
+  std::string too_large, too_small, large_links;
+  int large_count = 0, small_count = 0;
+  for (const BoneSize& size : scale.bones) {
+    const bool large = size.ratio >= kImplausibleBoneSizeRatio;
+    if (!large && !(size.ratio <= 1.0 / kImplausibleBoneSizeRatio)) continue;
+    std::ostringstream line;
+    line << std::setprecision(3) << "bone '" << size.bone << "' is " << size.diagonal_m << " m across, ";
+    if (large)
+      line << std::lround(size.ratio) << " times";
+    else
+      line << "1/" << std::lround(1.0 / size.ratio) << " of";
+    line << " the median muscle (" << scale.median_muscle_diagonal_m << " m)";
+    std::string& list = large ? too_large : too_small;
+    list += (list.empty() ? "" : "; ") + line.str();
+    ++(large ? large_count : small_count);
+    if (large) large_links += (large_links.empty() ? "'" : ", '") + size.bone + "'";
+  }
+  if (too_large.empty() && too_small.empty()) return;
+  std::string message = "bone meshes of an implausible size beside the muscles (sizes are bounding-box diagonals; " +
+                        std::to_string(std::lround(kImplausibleBoneSizeRatio)) +
+                        " times larger or smaller is a unit error, not anatomy): ";
+  if (!too_large.empty())
+    message += too_large +
+               (large_count > 1 ? ". Are these meshes in millimetres? Scale them to metres in the <collision> of links "
+                                : ". Is the mesh in millimetres? Scale it to metres in the <collision> of link ") +
+               large_links + " in the URDF: <mesh filename=\"...\" scale=\"0.001 0.001 0.001\"/>";
+  if (!too_large.empty() && !too_small.empty()) message += ". ";
+  if (!too_small.empty())
+    message += too_small + (small_count > 1 ? ". Are these meshes" : ". Is the mesh") +
+               " scaled twice (a URDF scale of 0.001 on a mesh already in metres), or are the muscle surface and fibre "
+               "files in millimetres? Bones and muscles must both be in metres";
+  throw ModelError(message);
+}
+
+// Counts, for each muscle in turn, its particles that start inside each bone. A bone's inside test is made when a
+// particle first falls in its bounding box; a bone whose surface is not closed has no inside and is left out.
+class BoneInsides {
+ public:
+  explicit BoneInsides(const std::vector<Bone>& bones) : bones_(bones), tests_(bones.size()), open_(bones.size(), false) {
+    for (const Bone& bone : bones) boxes_.push_back(boundsOf(bone.surface.vertices));
+  }
+
+  // Particles of `positions` inside each bone (per bone) and inside any bone.
+  std::pair<std::vector<int>, int> count(const Eigen::Matrix3Xd& positions) {
+    std::vector<int> per_bone(bones_.size(), 0);
+    int inside_any = 0;
+    for (Eigen::Index i = 0; i < positions.cols(); ++i) {
+      const Eigen::Vector3d p = positions.col(i);
+      bool inside = false;
+      for (std::size_t b = 0; b < bones_.size(); ++b) {
+        if ((p.array() < boxes_[b].min.array()).any() || (p.array() > boxes_[b].max.array()).any()) continue;
+        const ClosedSurfaceInsideTest* test = testOf(b);
+        if (test == nullptr || !test->contains(p)) continue;
+        ++per_bone[b];
+        inside = true;
+      }
+      inside_any += inside ? 1 : 0;
+    }
+    return {per_bone, inside_any};
+  }
+
+ private:
+  const ClosedSurfaceInsideTest* testOf(std::size_t b) {
+    if (!tests_[b] && !open_[b]) {
+      try {
+        tests_[b] = std::make_unique<ClosedSurfaceInsideTest>(bones_[b].surface, bones_[b].name);
+      } catch (const OpenSurfaceError&) {
+        open_[b] = true;
+      }
+    }
+    return tests_[b].get();
+  }
+
+  const std::vector<Bone>& bones_;
+  std::vector<AlignedBox> boxes_;
+  std::vector<std::unique_ptr<ClosedSurfaceInsideTest>> tests_;
+  std::vector<bool> open_;
+};
+
+// "muscle 'm': 3840 of 4224 particles (91 %) start inside bone 'femur' ..." when more than
+// kMostlyInsideBoneWarningFraction of them do; "" otherwise.
+std::string mostlyInsideBoneWarning(const Muscle& muscle, const std::vector<Bone>& bones, BoneInsides& insides,
+                                    const Eigen::Matrix3Xd& positions) {
+  const auto [per_bone, inside_any] = insides.count(positions);
+  const auto particles = positions.cols();
+  if (particles == 0 || inside_any <= kMostlyInsideBoneWarningFraction * static_cast<double>(particles)) return "";
+  std::vector<std::pair<int, std::size_t>> holding;  // (particles inside, bone), most first
+  for (std::size_t b = 0; b < bones.size(); ++b)
+    if (per_bone[b] > 0) holding.emplace_back(per_bone[b], b);
+  std::sort(holding.begin(), holding.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  const auto percent = [&](int count) { return std::lround(100.0 * count / static_cast<double>(particles)); };
+  std::ostringstream warning;
+  warning << "muscle '" << muscle.name << "': " << inside_any << " of " << particles << " particles ("
+          << percent(inside_any) << " %) start inside bone" << (holding.size() > 1 ? "s " : " ");
+  for (std::size_t k = 0; k < holding.size(); ++k) {
+    warning << (k > 0 ? ", '" : "'") << bones[holding[k].second].name << "'";
+    if (holding.size() > 1) warning << " (" << holding[k].first << ", " << percent(holding[k].first) << " %)";
+  }
+  warning << ", and no collision can keep the muscle out of " << (holding.size() > 1 ? "them" : "it")
+          << ". Are the bone meshes in the units (metres) and the frame of the muscle's surface and fibre files? Check "
+             "the <mesh scale> and <origin> of the link's <collision> in the URDF";
+  return warning.str();
+}
+
 // A fibre end to be joined to its bone through a tendon (global particle index before the anchors are inserted).
 struct PendingTendon {
   std::int32_t particle;
@@ -267,6 +383,26 @@ void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTend
 
 }  // namespace
 
+BoneScale measureBoneScale(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones) {
+  BoneScale scale;
+  std::vector<double> muscle_diagonals;
+  for (const Muscle& muscle : muscles) muscle_diagonals.push_back(diagonalOf(muscle.surface));
+  if (!muscle_diagonals.empty()) {
+    const auto middle = muscle_diagonals.begin() + static_cast<std::ptrdiff_t>(muscle_diagonals.size() / 2);
+    std::nth_element(muscle_diagonals.begin(), middle, muscle_diagonals.end());
+    scale.median_muscle_diagonal_m = *middle;
+  }
+  for (const Bone& bone : bones) {
+    BoneSize size;
+    size.bone = bone.name;
+    size.diagonal_m = diagonalOf(bone.surface);
+    size.ratio = scale.median_muscle_diagonal_m > 0 ? size.diagonal_m / scale.median_muscle_diagonal_m
+                                                    : std::numeric_limits<double>::quiet_NaN();
+    scale.bones.push_back(size);
+  }
+  return scale;
+}
+
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report) {
   const auto start = std::chrono::steady_clock::now();
@@ -303,6 +439,9 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     total += static_cast<std::size_t>(samples.position.cols());
     all_samples.push_back(std::move(samples));
   }
+  // Every muscle surface is there and finite: the bones can be measured against them.
+  refuseImplausibleBoneSizes(muscles, bones);
+  BoneInsides bone_insides(bones);
 
   const auto n = static_cast<Eigen::Index>(total);
   system.rest_position.resize(3, n);
@@ -422,6 +561,9 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
       system.blend_weight.col(i) /= weight_sum;
     }
 
+    if (const std::string warning = mostlyInsideBoneWarning(muscle, bones, bone_insides, samples.position);
+        !warning.empty())
+      out.warnings.push_back(warning);
     if (checked_fibres > 0 && 2 * reversed_fibres > checked_fibres)
       out.warnings.push_back("muscle '" + muscle.name + "': " + std::to_string(reversed_fibres) + " of " +
                              std::to_string(checked_fibres) + " fibres start nearer its insertion bone '" +

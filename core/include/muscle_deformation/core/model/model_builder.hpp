@@ -67,6 +67,37 @@ struct MuscleBuildSummary {
 // muscle and the bones: a joint between those bones moving pulls them apart by centimetres.
 constexpr double kCloseAttachmentsWarningM = 0.005;
 
+// How big each bone is beside the muscles it is built with: the diagonal of its rest bounding box over the median of
+// the muscles' (the scene's typical muscle). Bones and muscles must both be in metres; a mesh in other units is off by
+// orders of magnitude, and nothing downstream says so: a URDF mesh in millimetres without scale="0.001 0.001 0.001"
+// makes a bone 1000 times too large, and most particles start inside it.
+struct BoneSize {
+  std::string bone;
+  double diagonal_m = 0;
+  double ratio = 0;  // diagonal_m / BoneScale::median_muscle_diagonal_m
+};
+struct BoneScale {
+  double median_muscle_diagonal_m = 0;
+  std::vector<BoneSize> bones;  // in the order of `bones`
+};
+BoneScale measureBoneScale(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones);
+
+// buildMassSpringSystem refuses a bone this many times larger or smaller than the median muscle (BoneSize::ratio at
+// least this, or at most its inverse), naming the bone and both sizes. Anatomy stays far inside: human bones span
+// about 1 cm (a phalanx) to under 1 m (a torso link holding spine and ribs) across, muscles about 3 cm to 0.5 m, so a
+// bone lies within about 35 times a scene's median muscle either way, even in a scene that selects only its smallest
+// or only its largest muscle. The bundled scene: bones 0.27 (patella, 67 mm) to 1.8 times (femur, 0.44 m) its median
+// muscle (0.247 m), and 0.14 to 9.1 times any one of its muscles alone. A unit error is 1000 times (millimetres read as
+// metres, or a scale of 0.001 applied twice), which the smallest bundled bone reaches at 270 times (143 beside the
+// largest muscle alone).
+constexpr double kImplausibleBoneSizeRatio = 100.0;
+
+// buildMassSpringSystem warns, naming the muscle, the bones and the fraction, when more than this fraction of a
+// muscle's particles start inside bones (closed bone surfaces only: an open one has no inside). Segmented muscles
+// touch their bones, and a few particles may start in them (none of the bundled scene's 33,280 does); most of a muscle
+// inside a bone is a bone in the wrong place or units, and no collision can keep the muscle out of it.
+constexpr double kMostlyInsideBoneWarningFraction = 0.5;
+
 struct ModelBuildReport {
   std::vector<MuscleBuildSummary> muscles;
   std::vector<std::string> warnings;
@@ -81,8 +112,10 @@ struct ModelBuildReport {
 // (ModelSettings::tendons): the tendon's bone end is a particle fixed to the bone (fibre_of kTendonAnchor, stored
 // after its muscle's fibre particles), joined to the fibre end by one spring of the muscle's material whose rest
 // length is their rest distance. The report warns, naming the muscle, when particles fixed to two bones lie closer
-// than kCloseAttachmentsWarningM at rest, and when most fibres run from the insertion to the origin bone. Boundary
-// particles get their collision radii (assignCollisionRadii, the seeds' heuristic); others radius 0.
+// than kCloseAttachmentsWarningM at rest, when most fibres run from the insertion to the origin bone, and when more
+// than kMostlyInsideBoneWarningFraction of a muscle's particles start inside bones; it refuses (ModelError) bones of an
+// implausible size beside the muscles (kImplausibleBoneSizeRatio). Boundary particles get their collision radii
+// (assignCollisionRadii, the seeds' heuristic); others radius 0.
 MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones,
                                        const ModelSettings& settings, ModelBuildReport* report = nullptr);
 
