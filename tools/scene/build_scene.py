@@ -707,6 +707,14 @@ YAML_HEADER = """\
 #
 #   urdf                    path of the skeleton URDF
 #   frame                   frame the muscle surfaces are expressed in (link name)
+#   reference_model         the musculoskeletal model the attachment sites come from
+#     osim                  path of the OpenSim model (gait2392)
+#     body_scales           per gait2392 body, scale factors (dimensionless) along the body's
+#                           own OpenSim axes (x forward, y up, z right) that make gait2392 match
+#                           this skeleton: pelvis and femur_r from the scene's bone registrations,
+#                           tibia_r one factor fitted to the VHF tibia and fibula; the knee's
+#                           translation functions scale with femur_r (as OpenSim's scale tool
+#                           does, and as the URDF's knee_tx_r / knee_ty_r do)
 #   muscles[]               one entry per muscle
 #     name                  snake_case identifier, unique
 #     surface               closed 2-manifold triangle surface, binary STL, metres
@@ -722,11 +730,21 @@ YAML_HEADER = """\
 #                           (1 ml = 1e-6 m^3), informative
 #     source                raw file it was made from (see data/NOTICE)
 #     attachment_note       where origin_bone / insertion_bone come from (text)
+#     origin_path           tendon path at the origin, from the bone towards the belly: the
+#                           origin site, then the via points the tendon passes; each entry
+#                           {link: URDF link, point: [x, y, z] in that link's frame, m}
+#     insertion_path        tendon path at the insertion, from the belly towards the bone: the
+#                           via points, then the insertion site (entries as above)
+#     reference_muscles     the gait2392 musculotendon(s) the sites come from, for length
+#                           comparisons ([] when none: the obturators)
+#     sites_source          how each point was obtained (text)
+#                           These four are written by tools/scene/sites.py from gait2392's path
+#                           points, mapped into the scene as the bones were (data/README.md,
+#                           "Attachment sites").
 """
 
 
 def write_yaml(root):
-    import yaml
     entries = []
     for name, stem, g, tags, col in MUSCLES:
         if g is not None:
@@ -753,10 +771,15 @@ def write_yaml(root):
             e["attachment_note"] = "from gait2392 %s path points" % g
         entries.append(e)
     doc = {"urdf": "../../urdf/right_hip_thigh.urdf", "frame": "pelvis", "muscles": entries}
+    # attachment sites from gait2392's path points (sites.py); they read the fibres, which generate_fibres
+    # makes from this build's output: rerun sites.py after it (tools/scene/README.md)
+    import sites
+    with open(out_path("tools", "scene", "build_params.json")) as f:
+        params = json.load(f)
+    sites.write_report(sites.add_sites(doc, params, root, MUSCLES))
     os.makedirs(out_path("config", "scenes"), exist_ok=True)
     with open(out_path("config", "scenes", "right_hip_thigh.yaml"), "w") as f:
-        f.write(YAML_HEADER + "\n")
-        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None, width=100)
+        sites.dump_scene(YAML_HEADER, doc, f)
 
 
 if __name__ == "__main__":
