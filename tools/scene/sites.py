@@ -181,10 +181,14 @@ class Gait2392:
     """Poses of pelvis, femur_r and tibia_r in the pelvis frame for gait2392 coordinates, with the
     model scaled per body the way OpenSim's scale tool does it: a body's path points and its joint's
     child-side offset scale with that body, the parent-side offset and the knee's translation
-    functions with the parent body (scales = {body: 3 factors in the body's OpenSim axes})."""
+    functions with the parent body (scales = {body: 3 factors in the body's OpenSim axes}).
+    hip_rest: hip angles (flexion, adduction, rotation) composed after the coordinates' rotation, as
+    our skeleton applies a trial's hip angles to the VHF posture."""
 
-    def __init__(self, root, scales=None):
+    def __init__(self, root, scales=None, hip_rest=None):
         self.root = root
+        self.R_rest = np.eye(3) if hip_rest is None else _rot("z", hip_rest[0]) @ _rot("x", hip_rest[1]) @ _rot(
+            "y", hip_rest[2])
         self.scales = {b: np.asarray((scales or {}).get(b, (1.0, 1.0, 1.0)), float) for b in BODIES}
         self.hip = sl.joint_offset(root, "hip_r", 0)
         self.tx, self.ty = sl.knee_splines(root)
@@ -197,6 +201,7 @@ class Gait2392:
         """{body: (R, p)}: a point x of the body (OpenSim axes, scaled) is at R x + p in the pelvis frame."""
         sp, sf = self.scales["pelvis"], self.scales["femur_r"]
         Rf = _rot("z", c["hip_flexion_r"]) @ _rot("x", c["hip_adduction_r"]) @ _rot("y", c["hip_rotation_r"])
+        Rf = Rf @ self.R_rest
         pf = sp * self.hip
         q = c["knee_angle_r"]
         Rt = Rf @ _rot("z", q)
@@ -313,7 +318,7 @@ def fit_tibia(pkg, params, root):
     T_os = sl.pd_points(sl.read_vtp(os.path.join(sl.OSIM_DIR, "Geometry", "tibia_r.vtp")))
     prox = T_os[:, 1] > -0.12      # the proximal 12 cm of gait2392's tibia, where the sites are
     d = np.linalg.norm(chain(T_os) - sl.sim_apply(x, M["tibia_r"]), axis=1)
-    return {"scale": scale,
+    return x, {"scale": scale,
             "fit_model_to_vhf_tibia_mean_mm": float(np.abs(r[:nt]).mean() * 1e3),
             "fit_model_to_vhf_tibia_max_mm": float(np.abs(r[:nt]).max() * 1e3),
             "fit_relative_to_femur_zxy_deg": np.degrees(rel).tolist(),
@@ -333,15 +338,18 @@ class Registrations:
         self.O = np.array(params["scene_origin_in_vhf_ros_m"])
         self.xp = _xsim(params["pelvis_registration"], "scale_ap_ml_si")
         self.xf = _xsim(params["femur_registration"], "scale_ap_ml_long")
-        self.tibia_info = fit_tibia(pkg, params, root)
+        self.x_tibia_fit, self.tibia_info = fit_tibia(pkg, params, root)
         self.tibia_scale = [round(self.tibia_info["scale"], 4)] * 3
         self.chain = knee_chain(params, root, self.tibia_scale)
         self.link_origin = {"pelvis": np.zeros(3), "femur_r": np.array(params["hip_centre"]),
                             "tibia_r": np.array(params["knee_centre"]),
                             "patella_r": np.array(params["patella_origin"])}
 
-    def scene(self, body, p_os):
+    def scene(self, body, p_os, fitted_tibia=False):
+        """fitted_tibia: tibia_r points by the fitted pose of fit_tibia instead (only to show why not)."""
         p = sl.os_to_ros(np.asarray(p_os, float)[None])
+        if body == "tibia_r" and fitted_tibia:
+            return sl.sim_apply(self.x_tibia_fit, p)[0]
         if body == "pelvis":
             return sl.sim_apply(self.xp, p)[0] - self.O
         if body == "femur_r":
@@ -481,7 +489,7 @@ class Bones:
         return float(np.median([abs(self.closest(x, link)[0]) for x in X]))
 
 
-def gait2392_path(root, reg, bl, gait, decisions):
+def gait2392_path(root, reg, bl, gait, decisions, fitted_tibia=False):
     """Registered path of a gait2392 muscle (mean over its bundles) at the zero configuration, as Sites;
     records the ConditionalPathPoints kept or dropped in `decisions`."""
     rest = {"knee_angle_r": KNEE_REST}
@@ -505,7 +513,7 @@ def gait2392_path(root, reg, bl, gait, decisions):
         pps = [pts[k] for pts in per_bundle]
         body, kind = pps[0].body, pps[0].kind
         label = "/".join(sorted({pp.name.split("-")[-1] for pp in pps}))
-        X = [reg.scene(body, pp.location(rest)) for pp in pps]
+        X = [reg.scene(body, pp.location(rest), fitted_tibia) for pp in pps]
         # a tibia_r moving point stands in for the patella (gait2392 has none): it goes onto our patella link
         link = PATELLA_STAND_IN if kind == "moving" and body == "tibia_r" else BODY_TO_LINK[body]
         path.append(Site(label, link, np.mean(X, axis=0), kind))
@@ -626,6 +634,40 @@ def path_lengths(poses, pts):
     return np.array([polyline_length([P[l][0] @ x + P[l][1] for l, x in pts]) for P in poses])
 
 
+DOFS = ("hip_flexion_r", "hip_adduction_r", "hip_rotation_r", "knee_angle_r")
+STEP = 0.02          # rad, central differences of the moment arms
+
+
+def skeleton_moment_arms(params, root, pts):
+    """-dL/dq (m) at the zero configuration of a path fixed in URDF links, for each of DOFS; the knee's
+    translations follow its angle as in the gait bags (mot_to_bag.py)."""
+    import render_check
+    tx, ty = sl.knee_splines(root)
+    ks, k0 = params["knee_spline_scale"], params["knee_spline_at_zero"]
+    out = []
+    for dof in DOFS:
+        L = []
+        for q in (STEP, -STEP):
+            v = {dof: q}
+            if dof == "knee_angle_r":
+                v.update(knee_tx_r=ks["tx"] * (float(tx(q)) - k0["tx"]), knee_ty_r=ks["ty"] * (float(ty(q)) - k0["ty"]))
+            L.append(path_lengths([render_check.forward_kinematics(URDF, v)[1]], pts)[0])
+        out.append(-(L[0] - L[1]) / (2 * STEP))
+    return np.array(out)
+
+
+def gait2392_moment_arms(model, bl, base):
+    out = []
+    for dof in DOFS:
+        L = []
+        for q in (STEP, -STEP):
+            c = dict(base)
+            c[dof] += q
+            L.append(np.mean([model.length(b, c) for b in bl]))
+        out.append(-(L[0] - L[1]) / (2 * STEP))
+    return np.array(out)
+
+
 def compute(pkg, params, root, muscles):
     """Sites, checks and the length comparison of every muscle of the table (build_scene.MUSCLES)."""
     reg = Registrations(pkg, params, root)
@@ -639,6 +681,7 @@ def compute(pkg, params, root, muscles):
         raise ValueError("the gait CSV and the raw trial have different frame counts")
     ref = Gait2392(root, reg.body_scales())
     generic = Gait2392(root)
+    posed = Gait2392(root, reg.body_scales(), params["vhf_rest_angles_rad"]["hip_flexion_adduction_rotation"])
     rest_hip = params["vhf_rest_angles_rad"]["hip_flexion_adduction_rotation"]
     rest = dict(zip(("hip_flexion_r", "hip_adduction_r", "hip_rotation_r"), rest_hip), knee_angle_r=KNEE_REST)
     LO = reg.link_origin
@@ -692,8 +735,17 @@ def compute(pkg, params, root, muscles):
         if bl:
             G = np.mean([[ref.length(b, c) for c in frames] for b in bl], axis=0)
             G0 = np.mean([[generic.length(b, c) for c in frames] for b in bl], axis=0)
+            Gp = np.mean([[posed.length(b, c) for c in frames] for b in bl], axis=0)
             Lreg = path_lengths(poses, registered)
-            r.update(ref_length=G, generic_length=G0, registered_length=Lreg,
+            if any(s.link == "tibia_r" for s in path):
+                # the road not taken: tibia points placed by the fitted pose of the VHF tibia
+                alt = gait2392_path(root, reg, bl, gait, [], fitted_tibia=True)
+                r["fitted_tibia_moment_arms"] = skeleton_moment_arms(params, root,
+                                                                     [local(s.link, s.scene) for s in alt])
+            r.update(moment_arms=skeleton_moment_arms(params, root, pts),
+                     registered_moment_arms=skeleton_moment_arms(params, root, registered),
+                     ref_moment_arms=gait2392_moment_arms(ref, bl, rest))
+            r.update(ref_length=G, generic_length=G0, posed_length=Gp, registered_length=Lreg,
                      ref_rest_length=float(np.mean([ref.length(b, rest) for b in bl])),
                      tendon_slack=float(np.mean([float(root.find(".//*[@name='%s']/tendon_slack_length" % b).text)
                                                  for b in bl])))
@@ -787,7 +839,7 @@ def reference_model(reg):
 
 
 def _r(x, d=2):
-    return None if x is None else round(float(x), d)
+    return None if x is None else round(float(x), d) + 0.0   # no -0.0
 
 
 def report(reg, rec):
@@ -798,6 +850,8 @@ def report(reg, rec):
            "rules_mm": {"snap_max": SNAP_MAX * 1e3, "cover_margin": COVER_MARGIN * 1e3, "snap_far": SNAP_FAR * 1e3,
                         "fleshy": FLESHY * 1e3, "belly_end_tie": TIE * 1e3},
            "active_share": ACTIVE_SHARE,
+           "order": list(rec),
+           "hip_rest_rad": reg.params["vhf_rest_angles_rad"]["hip_flexion_adduction_rotation"],
            "muscles": {}}
     for name, r in rec.items():
         m = {"reference_muscles": r["bundles"], "notes": r["notes"], "ordered": r["ordered"],
@@ -813,8 +867,18 @@ def report(reg, rec):
                       "r": _r(np.corrcoef(r["length"], r["ref_length"])[0, 1], 3),
                       "registered_r": _r(np.corrcoef(r["registered_length"], r["ref_length"])[0, 1], 3),
                       "registered_excursion_mm": _r(np.ptp(r["registered_length"]) * 1e3),
+                      "registered_r_posed": _r(np.corrcoef(r["registered_length"], r["posed_length"])[0, 1], 3),
+                      "posed_excursion_mm": _r(np.ptp(r["posed_length"]) * 1e3),
                       "ref_rest_length_mm": _r(r["ref_rest_length"] * 1e3, 1),
-                      "tendon_slack_mm": _r(r["tendon_slack"] * 1e3, 1)})
+                      "tendon_slack_mm": _r(r["tendon_slack"] * 1e3, 1),
+                      "moment_arms_at_rest_mm": {
+                          "dofs": list(DOFS),
+                          "ours": [_r(v * 1e3, 1) for v in r["moment_arms"]],
+                          "registered": [_r(v * 1e3, 1) for v in r["registered_moment_arms"]],
+                          "gait2392": [_r(v * 1e3, 1) for v in r["ref_moment_arms"]]}})
+            if "fitted_tibia_moment_arms" in r:
+                m["moment_arms_at_rest_mm"]["registered_fitted_tibia"] = [
+                    _r(v * 1e3, 1) for v in r["fitted_tibia_moment_arms"]]
         out["muscles"][name] = m
     return out
 
