@@ -81,7 +81,7 @@ BODIES = ("pelvis", "femur_r", "tibia_r")          # the gait2392 bodies the bun
 BODY_TO_LINK = {"pelvis": "pelvis", "femur_r": "femur_r", "tibia_r": "tibia_r"}
 KNEE_REST = 0.0            # knee_angle_r of the zero configuration (gait2392 coordinate, rad; see fit_tibia)
 ACTIVE_SHARE = 0.5         # a ConditionalPathPoint stays when active over more than this share of the gait's range
-DIGITS = 6                 # decimals of the written coordinates (m): micrometres
+DIGITS = 5                 # significant digits of the written coordinates (m)
 # the quadriceps' MovingPathPoints stand in for the patella (gait2392 has no patella body)
 PATELLA_STAND_IN = "patella_r"
 # muscles without a gait2392 counterpart whose tendon joins another's: the obturator internus tendon
@@ -826,7 +826,7 @@ def yaml_keys(r, reg):
     LO = reg.link_origin
 
     def entry(s):
-        return FlowMap(link=s.link, point=[round(float(v), DIGITS) + 0.0 for v in s.scene - LO[s.link]])
+        return FlowMap(link=s.link, point=[float("%.*g" % (DIGITS, v)) + 0.0 for v in s.scene - LO[s.link]])
     return {"origin_path": [entry(s) for s in r["origin"]],
             "insertion_path": [entry(s) for s in r["insertion"]],
             "reference_muscles": list(r["bundles"]),
