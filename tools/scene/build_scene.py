@@ -29,13 +29,11 @@ os.sched_setaffinity(0, {int(open("/proc/self/stat").read().rsplit(")", 1)[1].sp
 
 import numpy as np  # noqa: E402
 import vtk  # noqa: E402
-from scipy.ndimage import map_coordinates
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from vtk.util.numpy_support import vtk_to_numpy
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import carve  # noqa: E402
 import scenelib as sl  # noqa: E402
 
 # ---------------------------------------------------------------------------
@@ -180,43 +178,8 @@ def os_femur_condyles(F):
 # signed distance grids and similarity registration
 # ---------------------------------------------------------------------------
 
-class SDFGrid:
-    """Signed distance to a closed mesh (negative inside) sampled on a grid."""
-
-    def __init__(self, pd, spacing=SDF_SPACING, margin=0.02):
-        b = np.array(pd.GetBounds()).reshape(3, 2)
-        lo, hi = b[:, 0] - margin, b[:, 1] + margin
-        dims = np.ceil((hi - lo) / spacing).astype(int) + 1
-        f = vtk.vtkImplicitPolyDataDistance()
-        f.SetInput(pd)
-        s = vtk.vtkSampleFunction()
-        s.SetImplicitFunction(f)
-        s.SetModelBounds(lo[0], lo[0] + (dims[0] - 1) * spacing,
-                         lo[1], lo[1] + (dims[1] - 1) * spacing,
-                         lo[2], lo[2] + (dims[2] - 1) * spacing)
-        s.SetSampleDimensions(*dims)
-        s.ComputeNormalsOff()
-        s.SetOutputScalarTypeToDouble()
-        s.Update()
-        v = vtk_to_numpy(s.GetOutput().GetPointData().GetScalars())
-        self.vol = v.reshape(dims[2], dims[1], dims[0]).transpose(2, 1, 0).copy()
-        self.lo, self.h = lo, spacing
-
-    def __call__(self, P):
-        idx = ((P - self.lo) / self.h).T
-        # outside the grid: far away, count as outside (large positive)
-        return map_coordinates(self.vol, idx, order=1, mode="constant", cval=1.0)
-
-
-def sim_apply(x, P):
-    """Similarity with per-axis scale: T(p) = R (s * p) + t, x = (rotvec, t, log s)."""
-    R = sl.rotvec_to_matrix(x[:3])
-    return (P * np.exp(x[6:9])) @ R.T + x[3:6]
-
-
-def sim_inverse(x, Q):
-    R = sl.rotvec_to_matrix(x[:3])
-    return ((Q - x[3:6]) @ R) / np.exp(x[6:9])
+# SDFGrid, sim_apply, sim_inverse live in scenelib (tools/scene/sites.py maps points with them too)
+SDFGrid, sim_apply, sim_inverse = sl.SDFGrid, sl.sim_apply, sl.sim_inverse
 
 
 def frame_from(a, b):
@@ -227,12 +190,7 @@ def frame_from(a, b):
     return np.column_stack([e1, e2, np.cross(e1, e2)])
 
 
-def rotvec_from_matrix(R):
-    ang = np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))
-    if ang < 1e-12:
-        return np.zeros(3)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return w / (2 * np.sin(ang)) * ang
+rotvec_from_matrix = sl.rotvec_from_matrix
 
 
 def penetration(sdf, x, Q):
@@ -249,7 +207,7 @@ def register_femur(F_ros, L_ros, cart_head, cart_distal, muscle_pts):
     lie on the bone surface, i.e. 0..3 mm outside it (target +1.5 mm); muscle
     vertices must not be inside the bone (depth penalised)."""
     pd = F_ros["pd"]
-    sdf = SDFGrid(pd)
+    sdf = SDFGrid(pd, SDF_SPACING)
     med_os, lat_os = F_ros["med"], F_ros["lat"]
     H, med, lat = L_ros["hip"], L_ros["med"], L_ros["lat"]
     K_os, K = 0.5 * (med_os + lat_os), 0.5 * (med + lat)
@@ -292,7 +250,7 @@ def register_pelvis(P_pd, hip_os_r, hip_os_l, sac_os, L_ros, vhf_sacrum, cart_ac
     hip centre -> its mirror about the sacral midline (3); OpenSim sacrum
     vertices -> VHF sacrum surface (robust, 0.3); acetabular cartilage vertices
     0..3 mm outside the bone (0.5); hip-muscle vertices not inside the bone."""
-    sdf = SDFGrid(P_pd)
+    sdf = SDFGrid(P_pd, SDF_SPACING)
     H, HL = L_ros["hip"], L_ros["hip_l"]
     tree = cKDTree(vhf_sacrum)
     s_ml = np.linalg.norm(H - HL) / np.linalg.norm(hip_os_r - hip_os_l)
@@ -320,13 +278,7 @@ def register_pelvis(P_pd, hip_os_r, hip_os_l, sac_os, L_ros, vhf_sacrum, cart_ac
     return sol.x, x0, sdf
 
 
-def body_fixed_zxy(R_ros):
-    """Angles (a, b, c) with R = Rz(a) Rx(b) Ry(c) in OpenSim axes (gait2392 order)."""
-    R = sl.R_OS_TO_ROS.T @ R_ros @ sl.R_OS_TO_ROS
-    b = np.arcsin(np.clip(R[2, 1], -1, 1))
-    a = np.arctan2(-R[0, 1], R[1, 1])
-    c = np.arctan2(-R[2, 0], R[2, 2])
-    return np.array([a, b, c])
+body_fixed_zxy = sl.body_fixed_zxy
 
 
 def os_bone(name):
@@ -564,6 +516,7 @@ def main():
     link_origin = {"pelvis": np.zeros(3), "femur_r": H, "tibia_r": K, "patella_r": Pc}
     muscles_scene = {name: shift(pd, O) for name, (_, pd) in muscles.items()}
     bones_scene = {b: shift(pd, -link_origin[link]) for b, (link, pd) in bones.items()}
+    import carve  # OpenVDB: only the full build needs it, not the tools that import this module's tables
     carved, carve_stats = carve.carve_bones(bones_scene, muscles_scene, {"hip_r": H, "femur_r": H},
                                             JOINT_REGION_RADIUS)
     for b in carve_stats:
@@ -754,6 +707,14 @@ YAML_HEADER = """\
 #
 #   urdf                    path of the skeleton URDF
 #   frame                   frame the muscle surfaces are expressed in (link name)
+#   reference_model         the musculoskeletal model the attachment sites come from
+#     osim                  path of the OpenSim model (gait2392)
+#     body_scales           per gait2392 body, scale factors (dimensionless) along the body's
+#                           own OpenSim axes (x forward, y up, z right) that make gait2392 match
+#                           this skeleton: pelvis and femur_r from the scene's bone registrations,
+#                           tibia_r one factor fitted to the VHF tibia and fibula; the knee's
+#                           translation functions scale with femur_r (as OpenSim's scale tool
+#                           does, and as the URDF's knee_tx_r / knee_ty_r do)
 #   muscles[]               one entry per muscle
 #     name                  snake_case identifier, unique
 #     surface               closed 2-manifold triangle surface, binary STL, metres
@@ -769,11 +730,21 @@ YAML_HEADER = """\
 #                           (1 ml = 1e-6 m^3), informative
 #     source                raw file it was made from (see data/NOTICE)
 #     attachment_note       where origin_bone / insertion_bone come from (text)
+#     origin_path           tendon path at the origin, from the bone towards the belly: the
+#                           origin site, then the via points the tendon passes; each entry
+#                           {link: URDF link, point: [x, y, z] in that link's frame, m}
+#     insertion_path        tendon path at the insertion, from the belly towards the bone: the
+#                           via points, then the insertion site (entries as above)
+#     reference_muscles     the gait2392 musculotendon(s) the sites come from, for length
+#                           comparisons ([] when none: the obturators)
+#     sites_source          how each point was obtained (text)
+#                           These four are written by tools/scene/sites.py from gait2392's path
+#                           points, mapped into the scene as the bones were (data/README.md,
+#                           "Attachment sites").
 """
 
 
 def write_yaml(root):
-    import yaml
     entries = []
     for name, stem, g, tags, col in MUSCLES:
         if g is not None:
@@ -800,10 +771,15 @@ def write_yaml(root):
             e["attachment_note"] = "from gait2392 %s path points" % g
         entries.append(e)
     doc = {"urdf": "../../urdf/right_hip_thigh.urdf", "frame": "pelvis", "muscles": entries}
+    # attachment sites from gait2392's path points (sites.py); they read the fibres, which generate_fibres
+    # makes from this build's output: rerun sites.py after it (tools/scene/README.md)
+    import sites
+    with open(out_path("tools", "scene", "build_params.json")) as f:
+        params = json.load(f)
+    sites.write_report(sites.add_sites(doc, params, root, MUSCLES))
     os.makedirs(out_path("config", "scenes"), exist_ok=True)
     with open(out_path("config", "scenes", "right_hip_thigh.yaml"), "w") as f:
-        f.write(YAML_HEADER + "\n")
-        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None, width=100)
+        sites.dump_scene(YAML_HEADER, doc, f)
 
 
 if __name__ == "__main__":

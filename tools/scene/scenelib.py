@@ -330,6 +330,65 @@ def matrix_to_rpy(R):
     return np.array([r, p, y])
 
 
+# --- signed distance grids and similarity transforms (registrations) -----------
+
+class SDFGrid:
+    """Signed distance to a closed mesh (negative inside) sampled on a grid."""
+
+    def __init__(self, pd, spacing=0.0015, margin=0.02):
+        b = np.array(pd.GetBounds()).reshape(3, 2)
+        lo, hi = b[:, 0] - margin, b[:, 1] + margin
+        dims = np.ceil((hi - lo) / spacing).astype(int) + 1
+        f = vtk.vtkImplicitPolyDataDistance()
+        f.SetInput(pd)
+        s = vtk.vtkSampleFunction()
+        s.SetImplicitFunction(f)
+        s.SetModelBounds(lo[0], lo[0] + (dims[0] - 1) * spacing,
+                         lo[1], lo[1] + (dims[1] - 1) * spacing,
+                         lo[2], lo[2] + (dims[2] - 1) * spacing)
+        s.SetSampleDimensions(*dims)
+        s.ComputeNormalsOff()
+        s.SetOutputScalarTypeToDouble()
+        s.Update()
+        v = vtk_to_numpy(s.GetOutput().GetPointData().GetScalars())
+        self.vol = v.reshape(dims[2], dims[1], dims[0]).transpose(2, 1, 0).copy()
+        self.lo, self.h = lo, spacing
+
+    def __call__(self, P):
+        idx = ((P - self.lo) / self.h).T
+        # outside the grid: far away, count as outside (large positive)
+        from scipy.ndimage import map_coordinates
+        return map_coordinates(self.vol, idx, order=1, mode="constant", cval=1.0)
+
+
+def sim_apply(x, P):
+    """Similarity with per-axis scale: T(p) = R (s * p) + t, x = (rotvec, t, log s)."""
+    R = rotvec_to_matrix(x[:3])
+    return (P * np.exp(x[6:9])) @ R.T + x[3:6]
+
+
+def sim_inverse(x, Q):
+    R = rotvec_to_matrix(x[:3])
+    return ((Q - x[3:6]) @ R) / np.exp(x[6:9])
+
+
+def rotvec_from_matrix(R):
+    ang = np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))
+    if ang < 1e-12:
+        return np.zeros(3)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return w / (2 * np.sin(ang)) * ang
+
+
+def body_fixed_zxy(R_ros):
+    """Angles (a, b, c) with R = Rz(a) Rx(b) Ry(c) in OpenSim axes (gait2392 order)."""
+    R = R_OS_TO_ROS.T @ R_ros @ R_OS_TO_ROS
+    b = np.arcsin(np.clip(R[2, 1], -1, 1))
+    a = np.arctan2(-R[0, 1], R[1, 1])
+    c = np.arctan2(-R[2, 0], R[2, 2])
+    return np.array([a, b, c])
+
+
 # --- OpenSim model parsing ---------------------------------------------------
 
 def fmm_spline(x, y):
