@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <ctime>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
@@ -92,5 +93,17 @@ class JsonRecords {
   std::vector<std::string> fields_;
   std::vector<std::string> records_;
 };
+
+// The end of every benchmark's main: writes `records` to `file_name` in the output directory and returns main's exit
+// code (1, with a message on stderr, when the file cannot be written).
+inline int finish(const JsonRecords& records, const Options& options, const std::string& file_name) {
+  const std::string path = options.out_dir + "/" + file_name;
+  if (!records.write(path)) {
+    std::fprintf(stderr, "cannot write %s\n", path.c_str());
+    return 1;
+  }
+  std::printf("wrote %s\n", path.c_str());
+  return 0;
+}
 
 }  // namespace bench

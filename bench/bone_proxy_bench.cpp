@@ -3,7 +3,8 @@
 // defines: depths inside the real bone (its mesh, read through its distance field at 1 mm), the skinned surfaces'
 // volume error and inside-bone vertices, and frame time.
 //
-//   gait:       the 1-cycle gait streamed warm from the rest pose, as the node does (surfaces and metrics every frame)
+//   gait:       the 1-cycle gait streamed as the node does (the core's StreamSession with the node's stream settings,
+//               poses 1/60 s apart; surfaces and metrics every frame)
 //   hard pose:  hip flexion 110 deg, knee 130 deg solved cold (the real-time issue's hard case)
 //
 // "Deeper than at rest": a free particle's depth inside a bone beyond the depth it had at rest (the bundled hip bone
@@ -15,8 +16,10 @@
 #include "bench_util.hpp"
 #include "node_defaults.hpp"
 #include "progress.hpp"
+#include "stream_play.hpp"
 
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
@@ -69,8 +72,7 @@ struct Yardsticks {
 
 void measureFrame(const DeformationPipeline& pipeline, const FrameResult& frame, const Eigen::VectorXd& rest_depth,
                   Yardsticks& out) {
-  const MuscleSimulation& simulation = pipeline.simulation();
-  const Eigen::VectorXd depth = depthInsideBones(*pipeline.metrics(), simulation.system(), simulation.state().position,
+  const Eigen::VectorXd depth = depthInsideBones(*pipeline.metrics(), pipeline.system(), pipeline.state().position,
                                                  frame.bone_transforms);
   out.particle_depth_mm = std::max(out.particle_depth_mm, kMillimetresPerMetre * depth.maxCoeff());
   out.deeper_than_rest_mm =
@@ -91,7 +93,7 @@ void measureFrame(const DeformationPipeline& pipeline, const FrameResult& frame,
 int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   std::filesystem::create_directories(options.out_dir);
-  const bench::NodeDefaults defaults = bench::loadNodeDefaults();
+  const CoreSettings defaults = bench::loadNodeDefaults();
   const BundledScene all = loadBundledScene(MD_PACKAGE_DIR, {});
   const std::size_t frame_count = options.quick ? std::min<std::size_t>(all.gait.frames.size(), 6) : all.gait.frames.size();
   const Pose hard_pose = poseFor(all, {{"hip_flexion_r", 110 * kDegree}, {"knee_angle_r", -130 * kDegree}});
@@ -99,19 +101,19 @@ int main(int argc, char** argv) {
   bench::Progress progress("bone_proxy", 2.0 * static_cast<double>(frame_count + 1));
   bench::JsonRecords records;
   for (const BoneProxyKind proxy : {BoneProxyKind::one_ring_spheres, BoneProxyKind::distance_field}) {
-    PipelineSettings settings;
-    settings.simulation = defaults.simulation;
+    PipelineSettings settings = defaults.pipeline;  // the node's, surfaces and metrics included
     settings.simulation.collision.bone_proxy = proxy;
-    std::unique_ptr<DeformationPipeline> pipeline;
+    std::unique_ptr<StreamSession> session;
     const double setup_ms = bench::millisecondsOf([&] {
-      pipeline = std::make_unique<DeformationPipeline>(all.scene.muscle_descriptions, all.scene.muscles, all.scene.bones,
-                                                       settings);
+      session = std::make_unique<StreamSession>(all.scene.muscle_descriptions, all.scene.muscles, all.scene.bones,
+                                                settings, defaults.stream);
     });
+    const DeformationPipeline* pipeline = &session->pipeline();
     if (!pipeline->metrics()) {
       std::fprintf(stderr, "bone_proxy_bench: no metrics: %s\n", pipeline->metricsProblem().c_str());
       return 1;
     }
-    const MuscleSimulation& simulation = pipeline->simulation();
+    const DeformationPipeline& simulation = *pipeline;
     const BoneTransforms rest_transforms(simulation.bones().size(), Eigen::Isometry3d::Identity());
     const Eigen::VectorXd rest_depth =
         depthInsideBones(*pipeline->metrics(), simulation.system(), simulation.system().rest_position, rest_transforms);
@@ -127,8 +129,8 @@ int main(int argc, char** argv) {
       records.add("case", scenario);
       records.add("muscles", static_cast<double>(simulation.system().muscleCount()));
       records.add("particles", static_cast<double>(simulation.system().particleCount()));
-      records.add("solver", toString(simulation.settings().solver_kind));
-      records.add("threads", static_cast<double>(simulation.settings().block_descent.threads));
+      records.add("solver", toString(simulation.settings().simulation.solver_kind));
+      records.add("threads", static_cast<double>(simulation.settings().threads));
       records.add("setup_ms", setup_ms);
       records.add("field_build_ms", field_ms);
       records.add("field_bytes", field_bytes);
@@ -153,17 +155,21 @@ int main(int argc, char** argv) {
       records.end();
     };
 
+    const FrameWants everything{true, true};
     Yardsticks gait;
     for (std::size_t f = 0; f < frame_count; ++f) {
-      const FrameResult& frame = pipeline->solve(gaitPose(all, f), StartMode::warm, true, true);
-      measureFrame(*pipeline, frame, rest_depth, gait);
+      const FrameResult* frame = bench::frameOf(
+          session->offer(bench::streamStamp(f), boneTransformsOf(simulation.bones(), gaitPose(all, f)), everything));
+      if (frame) measureFrame(*pipeline, *frame, rest_depth, gait);  // no frame: no bone moved, nothing solved
     }
     progress.finished(std::string(toString(proxy)) + " gait", static_cast<double>(frame_count));
     common("gait", gait);
 
+    // A single pose solved cold: a stream of its own, whose first pose starts cold.
     Yardsticks hard;
-    pipeline->reset();
-    const FrameResult& frame = pipeline->solve(hard_pose, StartMode::cold, true, true);
+    session->restart();
+    const FrameResult& frame = bench::solvedFrame(
+        session->offer(bench::streamStamp(0), boneTransformsOf(simulation.bones(), hard_pose), everything));
     measureFrame(*pipeline, frame, rest_depth, hard);
     progress.finished(std::string(toString(proxy)) + " hard pose", 1.0);
     common("hip_flexion_110_knee_130_cold", hard);
@@ -172,11 +178,5 @@ int main(int argc, char** argv) {
                 toString(proxy), bench::median(gait.solve_ms), gait.deeper_than_rest_mm, meanOf(gait.volume_mean_pct),
                 maxOf(gait.volume_max_pct), hard.deeper_than_rest_mm);
   }
-  const std::string path = options.out_dir + "/bone_proxy.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "bone_proxy.json");
 }

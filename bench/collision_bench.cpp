@@ -7,6 +7,7 @@
 #include "paper_figures.hpp"
 
 #include "muscle_deformation/core/collision/collision.hpp"
+#include "muscle_deformation/core/model/collision_radii.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
@@ -200,11 +201,5 @@ int main(int argc, char** argv) {
       records.end();
     }
   }
-  const std::string path = options.out_dir + "/iteration.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "iteration.json");
 }

@@ -44,14 +44,15 @@ inline std::vector<int> checkpointIterations(int cap) {
   return result;
 }
 
-// Runs a solver with the given collision hook (VerletSolver::solve or LocalGlobalSolver::solve bound to a solver).
+// Runs a solver with the given collision hook (VerletSolver::solve or LocalGlobalSolver::solve bound to a solver and
+// the StoppingSettings of the solve).
 using SolveFunction =
     std::function<muscle_deformation::SolveStats(muscle_deformation::ParticleState&,
                                                  const muscle_deformation::AfterUpdateHook&)>;
 
 // One solve from `state` (already pre-transformed or warm-started; the collision world already posed), with
 // collision after every update, snapshotting the state at the checkpoint iterations of `cap`. The solver decides when
-// to stop; give it an iteration cap of `cap` so that every checkpoint is reached.
+// to stop; give it stopping settings with an iteration cap of `cap` so that every checkpoint is reached.
 inline ConvergenceRun checkpointedSolve(muscle_deformation::ParticleState state,
                                         muscle_deformation::CollisionWorld* collision, int cap,
                                         const SolveFunction& solve) {

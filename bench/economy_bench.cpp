@@ -1,6 +1,7 @@
 // What each economy of "model only what a scene needs" buys, on the bundled scene with the node's defaults
-// (config/muscle_deformation.yaml: 20 particles per fibre, 100 iterations per frame, warm start), playing the bundled
-// gait frame by frame as the node does (warm from the previous frame, cold when a bone jumps):
+// (config/muscle_deformation.yaml: 20 particles per fibre, the node's solver and frame stopping, warm start), playing
+// the bundled gait frame by frame through the node's stream protocol (the core's StreamSession: warm from the previous
+// frame, cold when a bone jumps, a pose no bone moved in not solved again, a reset after a failed frame):
 //   muscle_subset:      one muscle, the 13 thigh13 muscles, all 26: frame time, build time, size and memory.
 //   bone_reach:         the collision stage's skip of muscle-bone tests whose bounds cannot meet, on and off, for the
 //                       hip muscles and the thigh13 muscles; the results must not change.
@@ -11,13 +12,13 @@
 //                       each pose held, and the gait followed by a held pose as long as the cycle.
 // Writes out/bench/economy.json: one object per economy and variant.
 #include "bench_util.hpp"
-#include "gait_stream.hpp"
 #include "node_defaults.hpp"
 #include "progress.hpp"
+#include "stream_play.hpp"
 
+#include "muscle_deformation/core/base/bone_transforms.hpp"
 #include "muscle_deformation/core/collision/collision.hpp"
-#include "muscle_deformation/core/model/rigid_pretransform.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
@@ -42,38 +43,40 @@ struct FrameRecord {
   FrameStats stats;
 };
 
-// Plays poses through a simulation, started as the node's stream starts them (bench::GaitStream), at the gait's 60 Hz.
+// Plays poses through a stream session as the node's stream plays them, stamped at the gait's 60 Hz. A pose the
+// session does not solve again (no bone moved) leaves no frame record, as the node solves nothing for it.
 class GaitPlayer {
  public:
-  GaitPlayer(MuscleSimulation& simulation, const bench::NodeDefaults& defaults)
-      : simulation_(simulation), stream_(simulation.bones(), defaults.stream) {}
+  explicit GaitPlayer(StreamSession& session) : session_(session) {}
 
-  FrameRecord solve(const Pose& pose) {
-    const BoneTransforms transforms = boneTransformsOf(simulation_.bones(), pose);
-    const StartMode start = stream_.start(frames_, transforms);
+  void play(const Pose& pose, std::vector<FrameRecord>& frames) {
+    const BoneTransforms transforms = boneTransformsOf(session_.bones(), pose);
     FrameRecord record;
-    record.cpu_ms = bench::cpuMillisecondsOf(
-        [&] { record.wall_ms = bench::millisecondsOf([&] { record.stats = simulation_.solve(pose, start); }); });
-    stream_.solved(frames_++, transforms);
-    return record;
+    const FrameResult* frame = nullptr;
+    record.cpu_ms = bench::cpuMillisecondsOf([&] {
+      record.wall_ms = bench::millisecondsOf(
+          [&] { frame = bench::frameOf(session_.offer(bench::streamStamp(played_++), transforms, FrameWants{})); });
+    });
+    if (!frame) return;
+    record.stats = frame->stats;
+    frames.push_back(record);
   }
 
  private:
-  MuscleSimulation& simulation_;
-  bench::GaitStream stream_;
-  std::size_t frames_ = 0;
+  StreamSession& session_;
+  std::size_t played_ = 0;
 };
 
-// Plays the poses through several simulations frame by frame in turn (so slow spells of a shared machine hit all of
-// them alike), calling after_frame() once every simulation has solved a frame. One record list per simulation.
-std::vector<std::vector<FrameRecord>> playInTurn(const std::vector<std::unique_ptr<MuscleSimulation>>& simulations,
-                                                 const std::vector<Pose>& poses, const bench::NodeDefaults& defaults,
+// Plays the poses through several sessions frame by frame in turn (so slow spells of a shared machine hit all of
+// them alike), calling after_frame() once every session has been offered a frame. One record list per session.
+std::vector<std::vector<FrameRecord>> playInTurn(const std::vector<std::unique_ptr<StreamSession>>& sessions,
+                                                 const std::vector<Pose>& poses,
                                                  const std::function<void()>& after_frame = {}) {
   std::vector<GaitPlayer> players;
-  for (const auto& simulation : simulations) players.emplace_back(*simulation, defaults);
-  std::vector<std::vector<FrameRecord>> played(simulations.size());
+  for (const auto& session : sessions) players.emplace_back(*session);
+  std::vector<std::vector<FrameRecord>> played(sessions.size());
   for (const Pose& pose : poses) {
-    for (std::size_t v = 0; v < players.size(); ++v) played[v].push_back(players[v].solve(pose));
+    for (std::size_t v = 0; v < players.size(); ++v) players[v].play(pose, played[v]);
     if (after_frame) after_frame();
   }
   return played;
@@ -97,16 +100,19 @@ double maxOf(const std::vector<double>& values) {
 }
 
 // Heap bytes of the model, the solver's copy and the state (positions and previous positions).
-double memoryBytes(const MuscleSimulation& simulation) {
-  const MassSpringSystem& system = simulation.system();
+double memoryBytes(const StreamSession& session) {
+  const DeformationPipeline& pipeline = session.pipeline();
+  const MassSpringSystem& system = pipeline.system();
   const double state = 2.0 * 3.0 * sizeof(double) * static_cast<double>(system.particleCount());
-  return static_cast<double>(system.modelBytes() + VerletSolver(system, simulation.settings().verlet).solverBytes()) +
+  return static_cast<double>(system.modelBytes() +
+                             VerletSolver(system, pipeline.settings().simulation.verlet).solverBytes()) +
          state;
 }
 
 // Fields every played variant reports: frame time, size, collision work and what collision left.
 void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, const std::string& variant,
-                      const MuscleSimulation& simulation, const std::vector<FrameRecord>& frames, double build_ms) {
+                      const StreamSession& session, const std::vector<FrameRecord>& frames, double build_ms) {
+  const DeformationPipeline& simulation = session.pipeline();
   const MassSpringSystem& system = simulation.system();
   records.add("economy", economy);
   records.add("variant", variant);
@@ -117,7 +123,7 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
   // Iterations a frame actually ran (under a time budget they vary), and which solver ran them.
   records.add("iterations_per_frame",
               bench::median(statColumn(frames, [](const FrameStats& s) { return static_cast<double>(s.solver.iterations); })));
-  records.add("solver", toString(simulation.settings().solver_kind));
+  records.add("solver", toString(simulation.settings().simulation.solver_kind));
   records.add("mss_ms_per_frame", bench::median(statColumn(frames, [](const FrameStats& s) { return s.solver.mss_ms; })));
   records.add("collision_ms_per_frame",
               bench::median(statColumn(frames, [](const FrameStats& s) { return s.solver.collision_ms; })));
@@ -129,7 +135,7 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
   records.add("muscles", static_cast<double>(system.muscleCount()));
   records.add("particles", static_cast<double>(system.particleCount()));
   records.add("springs", static_cast<double>(system.springs.size()));
-  records.add("memory_bytes", memoryBytes(simulation));
+  records.add("memory_bytes", memoryBytes(session));
   records.add("bones", static_cast<double>(simulation.bones().size()));
   const CollisionWorld* world = simulation.collisionWorld();
   double bone_spheres = 0;
@@ -148,11 +154,18 @@ void addPlayedVariant(bench::JsonRecords& records, const std::string& economy, c
                                        })));
 }
 
-std::unique_ptr<MuscleSimulation> build(const Scene& scene, const SimulationSettings& settings, double& build_ms) {
-  std::unique_ptr<MuscleSimulation> simulation;
-  build_ms = bench::millisecondsOf(
-      [&] { simulation = std::make_unique<MuscleSimulation>(scene.muscles, scene.bones, settings); });
-  return simulation;
+// A stream session of the node's (its pipeline settings with `settings` for the simulation, particles only, and its
+// stream session settings).
+std::unique_ptr<StreamSession> build(const Scene& scene, const SimulationSettings& settings, const CoreSettings& node,
+                                     double& build_ms) {
+  PipelineSettings pipeline = bench::particlesOnly(node.pipeline);
+  pipeline.simulation = settings;
+  std::unique_ptr<StreamSession> session;
+  build_ms = bench::millisecondsOf([&] {
+    session = std::make_unique<StreamSession>(scene.muscle_descriptions, scene.muscles, scene.bones, pipeline,
+                                              node.stream);
+  });
+  return session;
 }
 
 }  // namespace
@@ -160,7 +173,8 @@ std::unique_ptr<MuscleSimulation> build(const Scene& scene, const SimulationSett
 int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   std::filesystem::create_directories(options.out_dir);
-  const bench::NodeDefaults defaults = bench::loadNodeDefaults();
+  const CoreSettings defaults = bench::loadNodeDefaults();
+  const SimulationSettings& node_simulation = defaults.pipeline.simulation;
 
   const BundledScene all = loadBundledScene(MD_PACKAGE_DIR, {});
   const BundledScene thigh13 = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
@@ -172,9 +186,9 @@ int main(int argc, char** argv) {
   for (std::size_t f = 0; f < frame_count; ++f) poses.push_back(gaitPose(all, f));
   std::string bone_list;
   for (const Bone& bone : all.scene.bones) bone_list += " " + bone.name;
-  std::printf("bones:%s; %zu gait frames per variant, %d iterations per frame, %d particles per fibre\n",
-              bone_list.c_str(), frame_count, defaults.simulation.stopping.max_iterations,
-              defaults.simulation.model.particles_per_fibre);
+  std::printf("bones:%s; %zu gait frames per variant, at most %d iterations per frame, %d particles per fibre\n",
+              bone_list.c_str(), frame_count, defaults.stream.stopping.sweeps.max_iterations,
+              node_simulation.model.particles_per_fibre);
 
   // Work estimate for the progress line: frames played x muscles simulated, summed over the runs below.
   const double one_muscles = static_cast<double>(one.scene.muscles.size());
@@ -196,22 +210,23 @@ int main(int argc, char** argv) {
   for (const Subset& subset : {Subset{"one_muscle_" + one.scene.muscles.front().name, &one},
                                Subset{"thigh13", &thigh13}, Subset{"all_26", &all}}) {
     double build_ms = 0;
-    auto simulation = build(subset.bundled->scene, defaults.simulation, build_ms);
-    GaitPlayer player(*simulation, defaults);
+    auto session = build(subset.bundled->scene, node_simulation, defaults, build_ms);
+    const DeformationPipeline& simulation = session->pipeline();
+    GaitPlayer player(*session);
     std::vector<FrameRecord> frames;
-    for (const Pose& pose : poses) frames.push_back(player.solve(pose));
+    for (const Pose& pose : poses) player.play(pose, frames);
     records.begin();
-    addPlayedVariant(records, "muscle_subset", subset.name, *simulation, frames, build_ms);
+    addPlayedVariant(records, "muscle_subset", subset.name, *session, frames, build_ms);
     records.end();
     const double frame_ms = bench::median(column(frames, &FrameRecord::wall_ms));
     if (subset.name == "all_26") all_26_frame_ms = frame_ms;
     if (subset.name == "thigh13") thigh13_frame_ms = frame_ms;
     std::printf("muscle_subset %-28s %3d muscles %6ld particles: frame %.1f ms, build %.0f ms, %.1f MB\n",
-                subset.name.c_str(), simulation->system().muscleCount(),
-                static_cast<long>(simulation->system().particleCount()), frame_ms, build_ms,
-                memoryBytes(*simulation) / 1e6);
+                subset.name.c_str(), simulation.system().muscleCount(),
+                static_cast<long>(simulation.system().particleCount()), frame_ms, build_ms,
+                memoryBytes(*session) / 1e6);
     progress.finished("muscle_subset " + subset.name,
-                      static_cast<double>(frame_count * static_cast<std::size_t>(simulation->system().muscleCount())));
+                      static_cast<double>(frame_count * static_cast<std::size_t>(simulation.system().muscleCount())));
   }
 
   // (b) Skipping muscle-bone tests out of reach, on and off, with each broad phase (a non-skipped pair costs the
@@ -225,17 +240,18 @@ int main(int argc, char** argv) {
   for (const ReachCase& reach : {ReachCase{{"hip", &hip}, BroadPhaseKind::octree},
                                  ReachCase{{"hip", &hip}, BroadPhaseKind::hash_grid},
                                  ReachCase{{"thigh13", &thigh13}, BroadPhaseKind::octree}}) {
-    std::vector<std::unique_ptr<MuscleSimulation>> simulations;
+    std::vector<std::unique_ptr<StreamSession>> simulations;
     std::vector<double> build_ms;
     for (const bool skip : {true, false}) {
-      SimulationSettings settings = defaults.simulation;
+      SimulationSettings settings = node_simulation;
       settings.collision.broad_phase = reach.broad_phase;
       settings.collision.skip_bones_out_of_reach = skip;
       build_ms.push_back(0);
-      simulations.push_back(build(reach.subset.bundled->scene, settings, build_ms.back()));
+      simulations.push_back(build(reach.subset.bundled->scene, settings, defaults, build_ms.back()));
     }
-    const std::vector<std::vector<FrameRecord>> played = playInTurn(simulations, poses, defaults);
-    const double difference = (simulations[0]->state().position - simulations[1]->state().position).cwiseAbs().maxCoeff();
+    const std::vector<std::vector<FrameRecord>> played = playInTurn(simulations, poses);
+    const double difference =
+        (simulations[0]->pipeline().state().position - simulations[1]->pipeline().state().position).cwiseAbs().maxCoeff();
     const std::string prefix = reach.subset.name + "_" + toString(reach.broad_phase);
     for (std::size_t v = 0; v < simulations.size(); ++v) {
       const std::string variant = prefix + (v == 0 ? "_skip_out_of_reach" : "_test_every_bone");
@@ -253,27 +269,27 @@ int main(int argc, char** argv) {
                   simulations[v]->bones().size(), difference);
     }
     progress.finished("bone_reach " + prefix, static_cast<double>(frame_count) * 2 *
-                                                  static_cast<double>(simulations[0]->system().muscleCount()));
+                                                  static_cast<double>(simulations[0]->pipeline().system().muscleCount()));
   }
 
   // (c) Boundary-only collision against every particle colliding. The two models share their particles (same
   // sampling), so each state is also measured with the other model's spheres: the boundary spheres say how far the
   // surface sank into bone, the every-particle spheres how far any particle did.
   {
-    SimulationSettings every_settings = defaults.simulation;
+    SimulationSettings every_settings = node_simulation;
     every_settings.model.boundary_fibre_fraction = 0;  // every fibre, hence every particle, collides
     double boundary_build_ms = 0, every_build_ms = 0;
-    std::vector<std::unique_ptr<MuscleSimulation>> simulations;
-    simulations.push_back(build(thigh13.scene, defaults.simulation, boundary_build_ms));
-    simulations.push_back(build(thigh13.scene, every_settings, every_build_ms));
+    std::vector<std::unique_ptr<StreamSession>> simulations;
+    simulations.push_back(build(thigh13.scene, node_simulation, defaults, boundary_build_ms));
+    simulations.push_back(build(thigh13.scene, every_settings, defaults, every_build_ms));
     // Penetration into bone (m) of [variant] measured with [sphere set]: 0 boundary spheres, 1 every-particle ones.
     double penetration[2][2] = {{0, 0}, {0, 0}};
     const std::vector<std::vector<FrameRecord>> played_in_turn =
-        playInTurn(simulations, poses, defaults, [&] {
+        playInTurn(simulations, poses, [&] {
           for (std::size_t v = 0; v < 2; ++v)
             for (std::size_t w = 0; w < 2; ++w)
-              penetration[v][w] = std::max(penetration[v][w], simulations[w]->collisionWorld()
-                                                                  ->measure(simulations[v]->state())
+              penetration[v][w] = std::max(penetration[v][w], simulations[w]->pipeline().collisionWorld()
+                                                                  ->measure(simulations[v]->pipeline().state())
                                                                   .max_penetration_muscle_bone_m);
         });
     const char* names[2] = {"boundary_only", "every_particle"};
@@ -287,7 +303,7 @@ int main(int argc, char** argv) {
       records.end();
       std::printf("collision_particles %-15s %6d spheres: frame %.1f ms, collision %.1f ms/frame, max bone "
                   "penetration %.2f mm (boundary spheres) / %.2f mm (every-particle spheres)\n",
-                  names[v], simulations[v]->collisionWorld()->muscleSphereCount(),
+                  names[v], simulations[v]->pipeline().collisionWorld()->muscleSphereCount(),
                   bench::median(column(played_in_turn[v], &FrameRecord::wall_ms)),
                   bench::median(statColumn(played_in_turn[v],
                                            [](const FrameStats& s) { return s.solver.collision_ms; })),
@@ -347,8 +363,8 @@ int main(int argc, char** argv) {
         for (const std::size_t f : stream.frames) {
           if (previous_solved) {
             const BoneMotion motion = largestBoneMotion(*previous_solved, recorded[f], centroids);
-            if (motion.translation_m <= defaults.stream.unchanged_translation_m &&
-                motion.rotation_rad <= defaults.stream.unchanged_rotation_rad) {
+            if (motion.translation_m <= defaults.stream.poses.unchanged_translation_m &&
+                motion.rotation_rad <= defaults.stream.poses.unchanged_rotation_rad) {
               ++skipped;
               continue;
             }
@@ -368,8 +384,8 @@ int main(int argc, char** argv) {
         records.add("messages", messages);
         records.add("solved", solved);
         records.add("skipped", static_cast<double>(skipped));
-        records.add("unchanged_translation_m", defaults.stream.unchanged_translation_m);
-        records.add("unchanged_rotation_rad", defaults.stream.unchanged_rotation_rad);
+        records.add("unchanged_translation_m", defaults.stream.poses.unchanged_translation_m);
+        records.add("unchanged_rotation_rad", defaults.stream.poses.unchanged_rotation_rad);
         records.end();
         std::printf("unchanged_pose %-26s %-7s %4.0f messages, %4zu skipped: %.1f ms per message with the check, "
                     "%.1f without\n",
@@ -378,11 +394,6 @@ int main(int argc, char** argv) {
     }
   }
 
-  const std::string path = options.out_dir + "/economy.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s (%.0f s)\n", path.c_str(), progress.elapsedSeconds());
-  return 0;
+  std::printf("economy done in %.0f s\n", progress.elapsedSeconds());
+  return bench::finish(records, options, "economy.json");
 }

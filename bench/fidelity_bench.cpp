@@ -2,7 +2,9 @@
 // depth inside bone, per skinning method, with and without the surface volume constraint, over
 //   gait          the 1-cycle gait streamed as the node does (warm starts),
 //   hip_flexion   the 2019 PBD thesis scenario on our data: hip_flexion_r 0 -> 1.5 rad -> 0 in warm frames
-//                 (iliacus and psoas are the muscles to watch: the thesis saw the iliacus go into the pelvis).
+//                 (iliacus and psoas are the muscles to watch: the thesis saw the iliacus go into the pelvis),
+// both played through the node's stream protocol (the core's StreamSession with the node's stream settings, poses
+// 1/60 s apart).
 // The particles are solved once per frame at the node's defaults (one block-descent sweep per frame, the sweep its time
 // budget gives on this machine, run as a sweep count so that every figure is repeatable); every surface variant is
 // skinned from the same particles. Volume errors are signed percent of the rest volume; depths are read from the bone
@@ -11,10 +13,11 @@
 //
 //   fidelity_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
-#include "gait_stream.hpp"
 #include "node_defaults.hpp"
+#include "stream_play.hpp"
 
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
+#include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/surfaces/surface_bone_contact.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
@@ -74,8 +77,8 @@ struct SurfaceVariant {
   std::vector<Vertices> surfaces;
 };
 
-void measureFrame(SurfaceVariant& v, const MuscleSimulation& simulation, const BoneTransforms& transforms, int threads,
-                  Tally& tally) {
+void measureFrame(SurfaceVariant& v, const DeformationPipeline& simulation, const BoneTransforms& transforms,
+                  int threads, Tally& tally) {
   tally.skinning_ms.push_back(
       bench::millisecondsOf([&] { v.skinning->update(simulation.state().position, transforms, v.surfaces); }));
   if (v.contact)
@@ -114,23 +117,26 @@ int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   bench::JsonRecords records;
   elapsedSeconds();
-  const bench::NodeDefaults node = bench::loadNodeDefaults();
-  SimulationSettings settings = node.simulation;
+  const CoreSettings node = bench::loadNodeDefaults();
+  StreamSessionSettings stream_settings = node.stream;
   // The node's time budget gives one sweep a frame on this machine (real-time section); as a count it repeats exactly.
-  settings.stopping.rule = StoppingRule::iterations;
-  settings.stopping.max_iterations = 1;
-  settings.stopping.limits = {};
-  shareStoppingRule(settings);
+  StoppingSettings& sweeps = stream_settings.stopping.sweeps;
+  sweeps.rule = StoppingRule::iterations;
+  sweeps.max_iterations = 1;
+  sweeps.limits = {};
 
   const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {});
-  MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
+  // The particles only: every surface variant below is skinned and measured from them by the bench itself.
+  StreamSession session(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
+                        bench::particlesOnly(node.pipeline), stream_settings);
+  const DeformationPipeline& simulation = session.pipeline();
   const MassSpringSystem& system = simulation.system();
   const std::size_t muscle_count = simulation.muscles().size();
   std::printf("[%6.1f s] %zu muscles, %ld particles\n", elapsedSeconds(), muscle_count,
               static_cast<long>(system.particleCount()));
 
   // The surface stages and metrics run on the node's threads (every core by default), as in its pipeline.
-  const int surface_threads = parallelThreads(node.simulation.block_descent);
+  const int surface_threads = parallelThreads(node.pipeline.threads, node.stream.stopping.sweeps.limits);
   std::printf("[%6.1f s] surface stages and metrics on %d threads\n", elapsedSeconds(), surface_threads);
   const SkinningSettings node_skinning;  // the node's skinning defaults are the core's (config/muscle_deformation.yaml)
   std::vector<Variant> variants;
@@ -208,12 +214,17 @@ int main(int argc, char** argv) {
 
   for (const Case& c : cases) {
     std::vector<Tally> tallies(surfaces.size(), Tally(muscle_count));
-    simulation.reset();
+    session.restart();  // each case a stream of its own: its first pose starts cold
     for (std::size_t f = 0; f < c.frames.size(); ++f) {
-      simulation.solve(c.frames[f], f == 0 ? StartMode::cold : StartMode::warm);
+      // A pose no bone moved in is not solved again (the node publishes nothing new): nothing new to measure.
+      if (!bench::frameOf(session.offer(bench::streamStamp(f), c.frames[f], FrameWants{}))) continue;
       for (std::size_t v = 0; v < surfaces.size(); ++v)
         measureFrame(surfaces[v], simulation, c.frames[f], surface_threads, tallies[v]);
     }
+    const StreamCounters& counters = session.counters();
+    std::printf("[%6.1f s] %s: %u poses offered in all so far, %u unchanged, %u refined, %u restarts\n",
+                elapsedSeconds(), c.name.c_str(), counters.offered, counters.unchanged, counters.refined,
+                counters.resets);
     for (std::size_t v = 0; v < surfaces.size(); ++v) {
       const Tally& t = tallies[v];
       double mean = 0, worst = 0, skinned_worst = 0, depth = 0, particle_depth = 0;
@@ -276,11 +287,6 @@ int main(int argc, char** argv) {
       }
     }
   }
-  const std::string path = options.out_dir + "/fidelity.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("[%6.1f s] wrote %s\n", elapsedSeconds(), path.c_str());
-  return 0;
+  std::printf("[%6.1f s] done\n", elapsedSeconds());
+  return bench::finish(records, options, "fidelity.json");
 }

@@ -72,39 +72,34 @@ int main(int argc, char** argv) {
     // reference is checked by starting Verlet from it (it must stay put) and compared with Verlet run cold to its
     // own displacement rule (which stops on the flat part, far from the minimum).
     const int reference_cap = options.quick ? 2000 : 10000;
-    LocalGlobalSettings lg_reference_settings;
-    lg_reference_settings.displacement_tolerance_m = 1e-7;
-    lg_reference_settings.max_iterations = reference_cap;
-    LocalGlobalSolver lg_reference(system, lg_reference_settings);
+    LocalGlobalSolver lg_reference(system, LocalGlobalSettings{});
+    const StoppingSettings lg_reference_stopping = StoppingSettings::atDisplacement(1e-7, reference_cap);
     const Run lg_converged = coldSolve(system, transforms, collision.get(), 1, [&](ParticleState& s, const AfterUpdateHook& h) {
-      return lg_reference.solve(s, h);
+      return lg_reference.solve(s, lg_reference_stopping, h);
     });
     const Eigen::Matrix3Xd& reference = lg_converged.final_position;
-    VerletSettings verlet_reference_settings;
-    verlet_reference_settings.stopping_rule = StoppingRule::displacement;
-    verlet_reference_settings.displacement_tolerance_m = 1e-7;
-    verlet_reference_settings.max_iterations = options.quick ? 5000 : 20000;
-    VerletSolver verlet_reference(system, verlet_reference_settings);
+    VerletSolver verlet_reference(system, VerletSettings{});
+    const StoppingSettings verlet_reference_stopping =
+        StoppingSettings::atDisplacement(1e-7, options.quick ? 5000 : 20000);
     const Run verlet_converged = coldSolve(system, transforms, collision.get(), 1, [&](ParticleState& s, const AfterUpdateHook& h) {
-      return verlet_reference.solve(s, h);
+      return verlet_reference.solve(s, verlet_reference_stopping, h);
     });
     ParticleState check;
     check.position = reference;
     check.previous_position = reference;
-    VerletSettings check_settings;
-    check_settings.max_iterations = options.quick ? 1000 : 5000;
-    VerletSolver check_solver(system, check_settings);
+    const StoppingSettings check_stopping = StoppingSettings::afterIterations(options.quick ? 1000 : 5000);
+    VerletSolver check_solver(system, VerletSettings{});
     if (collision)
-      check_solver.solve(check, [&](ParticleState& s) { return collision->resolve(s); });
+      check_solver.solve(check, check_stopping, [&](ParticleState& s) { return collision->resolve(s); });
     else
-      check_solver.solve(check);
+      check_solver.solve(check, check_stopping);
     const double verlet_moves_reference_mm = rmsMillimetres(check.position, reference);
     const double verlet_cold_to_reference_mm = rmsMillimetres(verlet_converged.final_position, reference);
     std::printf("\ncollisions %s. reference: local/global quasi-static, %d iterations (rule met: %d, last mean "
                 "displacement %.2e m); Verlet started there moves it %.3f mm RMS in %d iterations; Verlet cold, %d "
                 "iterations (rule met: %d, %.2e m), ends %.3f mm RMS from it\n",
                 collision_name, lg_converged.stats.iterations, lg_converged.stats.stopping_rule_met,
-                lg_converged.stats.mean_displacement_m, verlet_moves_reference_mm, check_settings.max_iterations,
+                lg_converged.stats.mean_displacement_m, verlet_moves_reference_mm, check_stopping.max_iterations,
                 verlet_converged.stats.iterations, verlet_converged.stats.stopping_rule_met,
                 verlet_converged.stats.mean_displacement_m, verlet_cold_to_reference_mm);
     records.begin();
@@ -140,23 +135,21 @@ int main(int argc, char** argv) {
       std::unique_ptr<VerletSolver> verlet;
       std::unique_ptr<LocalGlobalSolver> local_global;
       double factorisation_ms = 0;
+      StoppingSettings stopping;
       auto makeSolver = [&](int iterations) {
+        stopping = StoppingSettings::afterIterations(iterations);
         if (variant.solver == "verlet") {
-          VerletSettings settings;
-          settings.max_iterations = iterations;
-          verlet = std::make_unique<VerletSolver>(system, settings);
-          solve = [&](ParticleState& s, const AfterUpdateHook& h) { return verlet->solve(s, h); };
+          verlet = std::make_unique<VerletSolver>(system, VerletSettings{});
+          solve = [&](ParticleState& s, const AfterUpdateHook& h) { return verlet->solve(s, stopping, h); };
         } else {
           LocalGlobalSettings settings;
           settings.quasi_static = variant.mode == "quasi_static";
           if (!settings.quasi_static) settings.time_step_s = variant.time_step_s;
           settings.volume_weight = variant.volume_weight;
           settings.chebyshev_rho = variant.chebyshev_rho;
-          settings.stopping_rule = StoppingRule::iterations;
-          settings.max_iterations = iterations;
           local_global = std::make_unique<LocalGlobalSolver>(system, settings);
           factorisation_ms = local_global->factorisationMilliseconds();
-          solve = [&](ParticleState& s, const AfterUpdateHook& h) { return local_global->solve(s, h); };
+          solve = [&](ParticleState& s, const AfterUpdateHook& h) { return local_global->solve(s, stopping, h); };
         }
       };
       makeSolver(variant.cap);
@@ -214,11 +207,5 @@ int main(int argc, char** argv) {
       records.end();
     }
   }
-  const std::string path = options.out_dir + "/local_global.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "local_global.json");
 }

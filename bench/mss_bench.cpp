@@ -106,11 +106,5 @@ int main(int argc, char** argv) {
     records.add("iterations_per_repetition", iterations_per_run);
     records.end();
   }
-  const std::string path = options.out_dir + "/mss.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "mss.json");
 }

@@ -1,10 +1,10 @@
 // The node's defaults (config/muscle_deformation.yaml) as core settings, read through the core's settings table like
-// the node's parameters, so the benchmarks that speak for the node run what the node runs.
+// the node's parameters, so the benchmarks that speak for the node run what the node runs: its pipeline settings
+// (model, solver, collision, threads, surfaces) and its stream session settings (the warm / cold / unchanged policy,
+// how a frame's solve stops, the refinement of unfinished frames).
 #pragma once
 
-#include "muscle_deformation/core/pipeline/pose_stream.hpp"
 #include "muscle_deformation/core/pipeline/settings_table.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
 
 #include <string>
 
@@ -14,20 +14,10 @@
 
 namespace bench {
 
-struct NodeDefaults {
-  muscle_deformation::SimulationSettings simulation;
-  muscle_deformation::PoseStreamSettings stream;  // warm / cold / unchanged policy of the node's stream
-};
-
-inline NodeDefaults loadNodeDefaults() {
-  namespace md = muscle_deformation;
-  md::CoreSettings settings = md::nodeDefaultSettings();
-  md::readSettingsYaml(std::string(MD_PACKAGE_DIR) + "/config/muscle_deformation.yaml", settings);
-  NodeDefaults defaults;
-  defaults.simulation = settings.pipeline.simulation;
-  md::shareStoppingRule(defaults.simulation);  // one set of stopping parameters, as the node
-  defaults.stream = settings.stream;
-  return defaults;
+inline muscle_deformation::CoreSettings loadNodeDefaults() {
+  muscle_deformation::CoreSettings settings = muscle_deformation::nodeDefaultSettings();
+  muscle_deformation::readSettingsYaml(std::string(MD_PACKAGE_DIR) + "/config/muscle_deformation.yaml", settings);
+  return settings;
 }
 
 }  // namespace bench

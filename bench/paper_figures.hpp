@@ -5,7 +5,7 @@
 #pragma once
 
 #include "muscle_deformation/core/collision/collision.hpp"
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 
 #include <Eigen/Geometry>
 

@@ -12,11 +12,12 @@
 #include "node_defaults.hpp"
 #include "paper_figures.hpp"
 #include "progress.hpp"
+#include "stream_play.hpp"
 
 #include "muscle_deformation/core/collision/collision.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
@@ -34,7 +35,7 @@ namespace {
 // A scene measured at one resolution: the system, its collision spheres and the five poses' bone transforms.
 struct MeasuredScene {
   std::string name;
-  std::unique_ptr<MuscleSimulation> simulation;  // owns the system for the bundled scene
+  std::unique_ptr<DeformationPipeline> simulation;  // owns the system for the bundled scene (particles only)
   MassSpringSystem own_system;                   // the synthetic scene's system
   const MassSpringSystem* system = nullptr;
   std::vector<SphereSet> bone_spheres;
@@ -83,7 +84,7 @@ int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   std::filesystem::create_directories(options.out_dir);
   const std::array<bench::PaperTableColumn, 4> paper = bench::paperTable1();
-  const bench::NodeDefaults defaults = bench::loadNodeDefaults();
+  const CoreSettings defaults = bench::loadNodeDefaults();
   const Timing timing = options.quick ? Timing{3, 5, 10} : Timing{21, 20, 50};
 
   const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
@@ -116,13 +117,14 @@ int main(int argc, char** argv) {
     for (const bench::PaperTableColumn& column : paper) {
       MeasuredScene scene;
       scene.name = scene_name;
-      SimulationSettings settings = defaults.simulation;
+      PipelineSettings pipeline_settings = bench::particlesOnly(defaults.pipeline);
+      SimulationSettings& settings = pipeline_settings.simulation;
       settings.model.particles_per_fibre = column.particles_per_fibre;
       double build_ms = 0;
       if (scene_name == "bundled_thigh13") {
         build_ms = bench::millisecondsOf([&] {
-          scene.simulation =
-              std::make_unique<MuscleSimulation>(bundled.scene.muscles, bundled.scene.bones, settings);
+          scene.simulation = std::make_unique<DeformationPipeline>(
+              bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones, pipeline_settings);
         });
         scene.system = &scene.simulation->system();
         const CollisionWorld& built = *scene.simulation->collisionWorld();
@@ -201,11 +203,6 @@ int main(int argc, char** argv) {
                         column.particles_per_fibre);
     }
   }
-  const std::string path = options.out_dir + "/paper_table.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s (%.0f s)\n", path.c_str(), progress.elapsedSeconds());
-  return 0;
+  std::printf("paper_table done in %.0f s\n", progress.elapsedSeconds());
+  return bench::finish(records, options, "paper_table.json");
 }

@@ -1,6 +1,8 @@
 // Real time against accuracy on the bundled scene (all 26 muscles, and thigh13), 20 particles per fibre, the node's
-// model and collision settings: the 1-cycle gait streamed frame by frame as the node does, and single poses solved
-// cold. Frame time is the solve (mass-spring system and collision), wall clock.
+// model and collision settings: the 1-cycle gait streamed frame by frame as the node does (the core's StreamSession
+// with the node's stream settings: warm, cold at a discontinuity, a pose no bone moved in not solved again, a reset
+// after a failed frame), and single poses solved cold. Frame time is the solve (mass-spring system and collision),
+// wall clock.
 //
 // What a frame's answer is (block_descent_solver.hpp): the minimiser of the springs, contacts and tissue drag towards
 // where the tissue carries each particle (the previous answer moved with the bones; cold: the rigid pre-transform).
@@ -23,10 +25,11 @@
 //   realtime_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
-#include "gait_stream.hpp"
 #include "node_defaults.hpp"
+#include "stream_play.hpp"
 
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
@@ -34,6 +37,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -55,20 +59,37 @@ struct Config {
   bool node_default = false;
 };
 
-SimulationSettings settingsFor(const SimulationSettings& defaults, const Config& config) {
-  SimulationSettings settings = defaults;
+// A configuration as the node would run it: the node's pipeline (particles only) and frame stopping (its cold-start
+// iterations and deep-contact sweeps) with the configuration's solver, rule and threads.
+struct Setup {
+  PipelineSettings pipeline;
+  FrameStopping stopping;
+  const SimulationSettings& simulation() const { return pipeline.simulation; }
+};
+
+Setup setupFor(const CoreSettings& node, const Config& config) {
+  Setup setup;
+  setup.pipeline = bench::particlesOnly(node.pipeline);
+  SimulationSettings& settings = setup.pipeline.simulation;
   settings.solver_kind = config.kind;
-  settings.stopping.rule = config.rule;
-  settings.stopping.max_iterations = config.max_iterations;
-  settings.stopping.time_budget_ms = config.time_budget_ms;
-  settings.stopping.limits = {};
-  shareStoppingRule(settings);
-  if (config.rule == StoppingRule::force_residual) settings.block_descent.residual_tolerance = config.residual_tolerance;
+  setup.stopping = node.stream.stopping;
+  StoppingSettings& sweeps = setup.stopping.sweeps;
+  sweeps.rule = config.rule;
+  sweeps.max_iterations = config.max_iterations;
+  sweeps.time_budget_ms = config.time_budget_ms;
+  sweeps.limits = {};
+  if (config.rule == StoppingRule::force_residual) sweeps.residual_tolerance = config.residual_tolerance;
   settings.local_global.lbfgs_history = config.lbfgs_history;
-  settings.block_descent.threads = config.threads;
+  setup.pipeline.threads = config.threads;
   if (config.tissue_relaxation_s >= 0) settings.block_descent.tissue_relaxation_s = config.tissue_relaxation_s;
-  settings.block_descent.predict_start = config.predict_start;
-  return settings;
+  settings.prediction.predict_start = config.predict_start;
+  return setup;
+}
+
+std::unique_ptr<DeformationPipeline> pipelineFor(const BundledScene& bundled, const Setup& setup,
+                                                 const BoneFields& bone_fields = {}) {
+  return std::make_unique<DeformationPipeline>(bundled.scene.muscle_descriptions, bundled.scene.muscles,
+                                               bundled.scene.bones, setup.pipeline, bone_fields);
 }
 
 // Block descent with the node's tissue drag and predicted start.
@@ -88,12 +109,12 @@ struct Measured {
   int iterations = 0;
 };
 
-// The common yardstick (residualOf) for one simulation's states, with the simulation's own contacts and the node's
+// The common yardstick (residualOf) for one pipeline's states, with the pipeline's own contacts and the node's
 // tissue drag.
-BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockDescentSettings& settings) {
-  BlockDescentSolver yardstick(simulation.system(), settings);
-  const CollisionWorld* world = simulation.collisionWorld();
-  // The query refreshes the world's broad-phase caches only; MuscleSimulation hands out the world read-only.
+BlockDescentSolver yardstickFor(const DeformationPipeline& pipeline, const BlockDescentSettings& settings) {
+  BlockDescentSolver yardstick(pipeline.system(), settings);
+  const CollisionWorld* world = pipeline.collisionWorld();
+  // The query refreshes the world's broad-phase caches only; the pipeline hands out the world read-only.
   yardstick.setContactQuery(
       [world](const ParticleState& state, double margin_m, ContactSet& contacts) {
         const_cast<CollisionWorld*>(world)->findContacts(state, contacts, margin_m);
@@ -104,14 +125,14 @@ BlockDescentSolver yardstickFor(const MuscleSimulation& simulation, const BlockD
 
 // One solved frame or pose against its reference. `carried`: where the tissue carried the particles in this frame
 // (the reference's own problem, whatever the configuration solved).
-Measured measured(MuscleSimulation& simulation, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
+Measured measured(const DeformationPipeline& pipeline, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
                   const Eigen::Matrix3Xd& carried, BlockDescentSolver& yardstick) {
   Measured m;
   m.frame_ms = stats.solver.total_ms;
-  m.rms_mm = bench::rmsMillimetres(simulation.state().position, reference);
+  m.rms_mm = bench::rmsMillimetres(pipeline.state().position, reference);
   m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
   m.iterations = stats.solver.iterations;
-  ParticleState judged = simulation.state();
+  ParticleState judged = pipeline.state();
   judged.carried_position = carried;
   m.residual = yardstick.residualOf(judged);
   return m;
@@ -161,7 +182,7 @@ void record(bench::JsonRecords& records, const std::string& scene, const std::st
   records.add("bone_penetration_max_mm", s.bone_penetration_max_mm);
   records.add("residual_median", s.residual_median);
   records.add("tissue_relaxation_s", drag ? settings.block_descent.tissue_relaxation_s : 0.0);
-  records.add("predict_start", drag && settings.block_descent.predict_start ? 1.0 : 0.0);
+  records.add("predict_start", drag && settings.prediction.predict_start ? 1.0 : 0.0);
   records.add("node_default", config.node_default ? 1.0 : 0.0);
   records.add("particles", static_cast<double>(particles));
   records.end();
@@ -179,23 +200,23 @@ int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   const int reference_sweeps = options.quick ? 60 : 300;
   bench::JsonRecords records;
-  const bench::NodeDefaults node = bench::loadNodeDefaults();
-  const SimulationSettings& defaults = node.simulation;
+  const CoreSettings node = bench::loadNodeDefaults();
+  const StoppingSettings& node_sweeps = node.stream.stopping.sweeps;
   elapsedSeconds();
 
   // The configurations compared, the node's defaults among them (config/muscle_deformation.yaml).
   Config node_default;
-  node_default.label = "node default: " + toString(defaults.solver_kind) + " " +
-                       (defaults.stopping.rule == StoppingRule::time_budget
-                            ? "budget " + std::to_string(static_cast<int>(defaults.stopping.time_budget_ms)) + " ms"
-                            : std::to_string(defaults.stopping.max_iterations) + " iterations");
-  node_default.kind = defaults.solver_kind;
-  node_default.rule = defaults.stopping.rule;
-  node_default.max_iterations = defaults.stopping.max_iterations;
-  node_default.time_budget_ms = defaults.stopping.time_budget_ms;
-  node_default.lbfgs_history = defaults.local_global.lbfgs_history;
-  node_default.threads = defaults.block_descent.threads;
-  node_default.predict_start = defaults.block_descent.predict_start;
+  node_default.label = "node default: " + toString(node.pipeline.simulation.solver_kind) + " " +
+                       (node_sweeps.rule == StoppingRule::time_budget
+                            ? "budget " + std::to_string(static_cast<int>(node_sweeps.time_budget_ms)) + " ms"
+                            : std::to_string(node_sweeps.max_iterations) + " iterations");
+  node_default.kind = node.pipeline.simulation.solver_kind;
+  node_default.rule = node_sweeps.rule;
+  node_default.max_iterations = node_sweeps.max_iterations;
+  node_default.time_budget_ms = node_sweeps.time_budget_ms;
+  node_default.lbfgs_history = node.pipeline.simulation.local_global.lbfgs_history;
+  node_default.threads = node.pipeline.threads;
+  node_default.predict_start = node.pipeline.simulation.prediction.predict_start;
   node_default.node_default = true;
   std::vector<Config> stream_configs;
   {
@@ -241,22 +262,25 @@ int main(int argc, char** argv) {
     // ----- stream -----
     Config reference_config = blockDescent(reference_sweeps, 0);
     reference_config.label = "reference";
-    const SimulationSettings reference_settings = settingsFor(defaults, reference_config);
+    const Setup reference_setup = setupFor(node, reference_config);
+    const SimulationSettings& reference_settings = reference_setup.simulation();
     std::vector<Eigen::Matrix3Xd> reference, carried;
     std::vector<BoneTransforms> transforms;
     std::vector<double> reference_residuals;
     double reference_moves_mm = 0;  // largest RMS between a reference frame and the same frame given twice the sweeps
     int particles = 0;
     {
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, reference_settings);
-      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
-      particles = static_cast<int>(simulation.system().particleCount());
+      // The reference is no stream of the node: every frame warm from the previous reference frame, whatever moved.
+      const std::unique_ptr<DeformationPipeline> simulation = pipelineFor(bundled, reference_setup);
+      BlockDescentSolver yardstick = yardstickFor(*simulation, reference_settings.block_descent);
+      particles = static_cast<int>(simulation->system().particleCount());
       for (std::size_t f = 0; f < frame_count; ++f) {
-        transforms.push_back(boneTransformsOf(simulation.bones(), gaitPose(bundled, f)));
-        simulation.solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm);
-        reference.push_back(simulation.state().position);
-        carried.push_back(simulation.state().carried_position);
-        reference_residuals.push_back(yardstick.residualOf(simulation.state()));
+        transforms.push_back(boneTransformsOf(simulation->bones(), gaitPose(bundled, f)));
+        simulation->solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm, reference_setup.stopping,
+                          false, false);
+        reference.push_back(simulation->state().position);
+        carried.push_back(simulation->state().carried_position);
+        reference_residuals.push_back(yardstick.residualOf(simulation->state()));
       }
       // How settled the references are: a few frames given as many sweeps again, and the same frames solved from the
       // same start by the Newton-Krylov solver (a global method; the sweeps are local).
@@ -267,11 +291,10 @@ int main(int argc, char** argv) {
       // Up to 94 steps measured on a thigh13 gait frame (its residual 6.8e-4, 99 s); at 40 two of three frames stopped
       // unconverged.
       newton_config.max_iterations = options.quick ? 10 : 120;
-      MuscleSimulation newton(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, newton_config),
-                              simulation.boneFields());
-      Config twice_config = blockDescent(2 * reference_sweeps, 0);
-      MuscleSimulation twice(bundled.scene.muscles, bundled.scene.bones, settingsFor(defaults, twice_config),
-                             simulation.boneFields());
+      const Setup newton_setup = setupFor(node, newton_config);
+      const std::unique_ptr<DeformationPipeline> newton = pipelineFor(bundled, newton_setup, simulation->boneFields());
+      const Setup twice_setup = setupFor(node, blockDescent(2 * reference_sweeps, 0));
+      const std::unique_ptr<DeformationPipeline> twice = pipelineFor(bundled, twice_setup, simulation->boneFields());
       // Per frame: the distance of Newton-Krylov's answer to the reference, whether it met its own tolerance (a
       // distance to a solve that did not converge says little), its own residual and the common yardstick's.
       std::vector<double> agreement_rms, agreement_max, newton_residual, newton_ms;
@@ -281,15 +304,16 @@ int main(int argc, char** argv) {
         if (f == 0) continue;
         // The same frame problem (the tissue carrying the previous reference frame) with twice the sweeps, from the
         // unpredicted start.
-        twice.continueFrom(transforms[f - 1], reference[f - 1]);
-        twice.solve(transforms[f], StartMode::warm);
-        reference_moves_mm = std::max(reference_moves_mm, bench::rmsMillimetres(twice.state().position, reference[f]));
-        newton.continueFrom(transforms[f - 1], reference[f - 1]);
-        const FrameStats stats = newton.solve(transforms[f], StartMode::warm);
-        agreement_rms.push_back(bench::rmsMillimetres(newton.state().position, reference[f]));
-        agreement_max.push_back(1e3 * (newton.state().position - reference[f]).colwise().norm().maxCoeff());
-        newton_residual.push_back(yardstick.residualOf(newton.state()));
+        twice->continueFrom(transforms[f - 1], reference[f - 1]);
+        twice->solve(transforms[f], StartMode::warm, twice_setup.stopping, false, false);
+        reference_moves_mm = std::max(reference_moves_mm, bench::rmsMillimetres(twice->state().position, reference[f]));
+        newton->continueFrom(transforms[f - 1], reference[f - 1]);
+        const FrameStats stats = newton->solve(transforms[f], StartMode::warm, newton_setup.stopping, false, false).stats;
+        agreement_rms.push_back(bench::rmsMillimetres(newton->state().position, reference[f]));
+        agreement_max.push_back(1e3 * (newton->state().position - reference[f]).colwise().norm().maxCoeff());
+        newton_residual.push_back(yardstick.residualOf(newton->state()));
         newton_ms.push_back(stats.solver.total_ms);
+        // Converged: the force residual where the solve ended below the tolerance (SolveStats::converged).
         if (stats.solver.converged) {
           ++converged_frames;
           converged_rms.push_back(agreement_rms.back());
@@ -351,22 +375,30 @@ int main(int argc, char** argv) {
       records.end();
     }
 
+    // Each configuration plays the gait through the node's stream protocol (StreamSession, the node's stream settings
+    // with the configuration's stopping), from the converged reference frame 0.
     for (const Config& config : stream_configs) {
-      const SimulationSettings settings = settingsFor(defaults, config);
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
-      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
-      simulation.continueFrom(transforms[0], reference[0]);
-      bench::GaitStream stream(simulation.bones(), node.stream);
-      stream.solved(0, transforms[0]);
+      const Setup setup = setupFor(node, config);
+      StreamSessionSettings stream_settings = node.stream;
+      stream_settings.stopping = setup.stopping;
+      StreamSession session(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
+                            setup.pipeline, stream_settings);
+      const DeformationPipeline& pipeline = session.pipeline();
+      BlockDescentSolver yardstick = yardstickFor(pipeline, reference_settings.block_descent);
+      session.continueFrom(bench::streamStamp(0), transforms[0], reference[0]);
       std::vector<Measured> rows;
       for (std::size_t f = 1; f < frame_count; ++f) {
-        const StartMode start = stream.start(f, transforms[f]);
-        const FrameStats stats = simulation.solve(transforms[f], start, bench::GaitStream::kFrameIntervalS);
+        const FrameResult* frame = bench::frameOf(session.offer(bench::streamStamp(f), transforms[f], FrameWants{}));
+        if (!frame) continue;  // no bone moved: the node solves nothing (StreamCounters::unchanged)
         // Judged against the reference frame's problem: the tissue carrying the reference's previous frame.
-        rows.push_back(measured(simulation, stats, reference[f], carried[f], yardstick));
-        stream.solved(f, transforms[f]);
+        rows.push_back(measured(pipeline, frame->stats, reference[f], carried[f], yardstick));
       }
-      record(records, scene_name, "stream", config, settings, summarise(rows), particles);
+      const StreamCounters& counters = session.counters();
+      if (counters.unchanged > 0 || counters.refined > 0 || counters.resets > 0)
+        std::printf("[%6.1f s]   %s %s: of %u poses the stream left %u unchanged, refined %u, restarted %u times\n",
+                    elapsedSeconds(), scene_name.c_str(), config.label.c_str(), counters.offered, counters.unchanged,
+                    counters.refined, counters.resets);
+      record(records, scene_name, "stream", config, setup.simulation(), summarise(rows), particles);
     }
 
     // ----- cold single poses -----
@@ -374,16 +406,16 @@ int main(int argc, char** argv) {
                                                          : fiveGaitFrames(bundled);
     std::vector<Eigen::Matrix3Xd> cold_reference, cold_carried;
     {
-      Config cold_reference_config = blockDescent(2 * reference_sweeps, 0);
-      const SimulationSettings settings = settingsFor(defaults, cold_reference_config);
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
-      BlockDescentSolver yardstick = yardstickFor(simulation, settings.block_descent);
+      const Setup setup = setupFor(node, blockDescent(2 * reference_sweeps, 0));
+      const std::unique_ptr<DeformationPipeline> simulation = pipelineFor(bundled, setup);
+      BlockDescentSolver yardstick = yardstickFor(*simulation, setup.simulation().block_descent);
       std::vector<double> residuals;
       for (const std::size_t f : poses) {
-        simulation.solve(gaitPose(bundled, f), StartMode::cold);
-        cold_reference.push_back(simulation.state().position);
-        cold_carried.push_back(simulation.state().carried_position);
-        residuals.push_back(yardstick.residualOf(simulation.state()));
+        simulation->solve(boneTransformsOf(simulation->bones(), gaitPose(bundled, f)), StartMode::cold, setup.stopping,
+                          false, false);
+        cold_reference.push_back(simulation->state().position);
+        cold_carried.push_back(simulation->state().carried_position);
+        residuals.push_back(yardstick.residualOf(simulation->state()));
       }
       records.begin();
       records.add("scene", scene_name);
@@ -393,27 +425,24 @@ int main(int argc, char** argv) {
       records.add("frames", static_cast<double>(poses.size()));
       records.add("reference_residual_median", bench::median(residuals));
       records.add("reference_residual_max", *std::max_element(residuals.begin(), residuals.end()));
-      records.add("tissue_relaxation_s", settings.block_descent.tissue_relaxation_s);
+      records.add("tissue_relaxation_s", setup.simulation().block_descent.tissue_relaxation_s);
       records.add("particles", static_cast<double>(particles));
       records.end();
     }
     for (const Config& config : cold_configs) {
-      const SimulationSettings settings = settingsFor(defaults, config);
-      MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
-      BlockDescentSolver yardstick = yardstickFor(simulation, reference_settings.block_descent);
+      const Setup setup = setupFor(node, config);
+      const std::unique_ptr<DeformationPipeline> simulation = pipelineFor(bundled, setup);
+      BlockDescentSolver yardstick = yardstickFor(*simulation, reference_settings.block_descent);
       std::vector<Measured> rows;
-      for (std::size_t k = 0; k < poses.size(); ++k)
-        rows.push_back(measured(simulation, simulation.solve(gaitPose(bundled, poses[k]), StartMode::cold),
-                                cold_reference[k], cold_carried[k], yardstick));
-      record(records, scene_name, "cold", config, settings, summarise(rows), particles);
+      for (std::size_t k = 0; k < poses.size(); ++k) {
+        const FrameResult& frame = simulation->solve(boneTransformsOf(simulation->bones(), gaitPose(bundled, poses[k])),
+                                                     StartMode::cold, setup.stopping, false, false);
+        rows.push_back(measured(*simulation, frame.stats, cold_reference[k], cold_carried[k], yardstick));
+      }
+      record(records, scene_name, "cold", config, setup.simulation(), summarise(rows), particles);
     }
   }
 
-  const std::string path = options.out_dir + "/realtime.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("[%6.1f s] wrote %s\n", elapsedSeconds(), path.c_str());
-  return 0;
+  std::printf("[%6.1f s] done\n", elapsedSeconds());
+  return bench::finish(records, options, "realtime.json");
 }

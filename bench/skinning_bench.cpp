@@ -1,9 +1,10 @@
 // Surface skinning: per-muscle update and precompute time of each method at 2k, 5k and 20k surface vertices, and the
 // fidelity of each method (volume error, surface inside bones) on the synthetic thigh after a bending pose.
 #include "bench_util.hpp"
+#include "stream_play.hpp"
 
 #include "muscle_deformation/core/scene/scene.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
@@ -97,16 +98,18 @@ int main(int argc, char** argv) {
   // --- Fidelity on the synthetic thigh after a bending pose: cold start, then the MSS alone (no collision stage yet).
   const SyntheticScene scene = makeSyntheticThigh(13, 8);
   // The full pipeline, collision included: cold start (rigid pre-transform), then the solve.
-  SimulationSettings simulation_settings;
+  SimulationSettings simulation_settings;  // the Verlet solver
   simulation_settings.model.particles_per_fibre = 20;
-  simulation_settings.verlet.stopping_rule = StoppingRule::displacement;
-  simulation_settings.verlet.displacement_tolerance_m = 1e-6;
-  simulation_settings.verlet.max_iterations = 2000;
-  MuscleSimulation simulation(scene.muscles, scene.bones, simulation_settings);
+  DeformationPipeline simulation(describedByName(scene.muscles), scene.muscles, scene.bones,
+                                 bench::particlesOnly(simulation_settings));
   const MassSpringSystem& system = simulation.system();
   const Pose pose = syntheticThighPose(0.6, 0.9);
   const BoneTransforms transforms = boneTransformsOf(scene.bones, pose);
-  const FrameStats frame = simulation.solve(pose, StartMode::cold);
+  const FrameStats frame =
+      simulation
+          .solve(transforms, StartMode::cold, FrameStopping::of(StoppingSettings::atDisplacement(1e-6, 2000)), false,
+                 false)
+          .stats;
   SolveStats stats = frame.solver;  // the solve behind the surfaces being recorded
   const ParticleState& state = simulation.state();
   std::printf("\nscene: %ld particles, solve %d iterations (%s), %.0f ms, with sphere collision (%d contacts left)\n",
@@ -160,12 +163,16 @@ int main(int argc, char** argv) {
     const UriResolver resolve = makeUriResolver({{"muscle_deformation", package}}, package);
     const Skeleton skeleton = Skeleton::fromUrdfFile(resolveScenePath(description, description.urdf_file, resolve));
     const Scene bundled = loadScene(description, skeleton, resolve);
-    SimulationSettings bundled_settings;
-    bundled_settings.verlet.max_iterations = 200;
-    MuscleSimulation bundled_simulation(bundled.muscles, bundled.bones, bundled_settings);
+    const SimulationSettings bundled_settings;  // the Verlet solver, 200 iterations below
+    DeformationPipeline bundled_simulation(bundled.muscle_descriptions, bundled.muscles, bundled.bones,
+                                           bench::particlesOnly(bundled_settings));
     const Pose bundled_pose = poseFromLinkPoses(bundled, skeleton.linkPoses({{"hip_flexion_r", 0.5}, {"knee_angle_r", -1.0}}));
-    const FrameStats bundled_frame = bundled_simulation.solve(bundled_pose, StartMode::cold);
     const BoneTransforms bundled_transforms = boneTransformsOf(bundled.bones, bundled_pose);
+    const FrameStats bundled_frame =
+        bundled_simulation
+            .solve(bundled_transforms, StartMode::cold, FrameStopping::of(StoppingSettings::afterIterations(200)), false,
+                   false)
+            .stats;
     const DeformationMetrics bundled_metrics(bundled.bones, bundled.muscles, bundled_simulation.system());
     scene_label = "bundled right_hip_thigh (26 muscles)";
     pose_label = "hip_flexion_r 0.5 rad, knee_angle_r -1.0 rad";
@@ -181,11 +188,5 @@ int main(int argc, char** argv) {
     }
   }
 
-  const std::string path = options.out_dir + "/skinning.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "skinning.json");
 }

@@ -6,15 +6,16 @@
 // Writes out/bench/speed_vs_error.json.
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
-#include "gait_stream.hpp"
 #include "progress.hpp"
+#include "stream_play.hpp"
 
 #include "muscle_deformation/core/collision/collision.hpp"
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
-#include "muscle_deformation/core/geometry.hpp"
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/core/model/spring_layout.hpp"
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
@@ -95,28 +96,28 @@ ModelSettings modelSettings(const ModelChoice& choice, int particles_per_fibre) 
   return settings;
 }
 
-LocalGlobalSettings referenceSettings(int cap, int lbfgs_history) {
+LocalGlobalSettings referenceSettings(int lbfgs_history) {
   LocalGlobalSettings settings;
   settings.quasi_static = true;
   settings.lbfgs_history = lbfgs_history;
-  settings.stopping_rule = StoppingRule::displacement;
-  settings.displacement_tolerance_m = kReferenceToleranceM;
-  settings.max_iterations = cap;
   return settings;
 }
 
-SimulationSettings referenceSimulationSettings(const ModelChoice& choice, int particles_per_fibre, int cap) {
+// How a reference solve stops: the displacement rule at kReferenceToleranceM, or `cap` iterations.
+StoppingSettings referenceStopping(int cap) { return StoppingSettings::atDisplacement(kReferenceToleranceM, cap); }
+
+SimulationSettings referenceSimulationSettings(const ModelChoice& choice, int particles_per_fibre) {
   SimulationSettings settings;
   settings.model = modelSettings(choice, particles_per_fibre);
   settings.solver_kind = SolverKind::local_global;
-  settings.local_global = referenceSettings(cap, kReferenceLbfgsHistory);
+  settings.local_global = referenceSettings(kReferenceLbfgsHistory);
   return settings;  // collisions on, default CollisionSettings (octree)
 }
 
-// The collision stage exactly as MuscleSimulation builds it (same system, hence the same shrunk radii), for a
+// The collision stage exactly as the pipeline builds it (same system, hence the same shrunk radii), for a
 // chosen broad phase, so configurations can call it from their own checkpointing hook.
-std::unique_ptr<CollisionWorld> collisionWorldFor(const MuscleSimulation& simulation, BroadPhaseKind broad_phase) {
-  CollisionSettings settings = simulation.settings().collision;
+std::unique_ptr<CollisionWorld> collisionWorldFor(const DeformationPipeline& simulation, BroadPhaseKind broad_phase) {
+  CollisionSettings settings = simulation.settings().simulation.collision;
   settings.broad_phase = broad_phase;
   std::vector<SphereSet> bone_spheres;
   std::vector<std::string> bone_names;
@@ -142,8 +143,8 @@ struct ModelContext {
   int particles_per_fibre = 0;
   int reference_cap = 0;
   // Builds the system (with the collision radii it shrinks at rest) that every configuration solves, and runs the
-  // reference settings, so the checkpointed reference solves can be checked against it.
-  std::unique_ptr<MuscleSimulation> simulation;
+  // reference settings, so the checkpointed reference solves can be checked against it (particles only).
+  std::unique_ptr<DeformationPipeline> simulation;
   std::unique_ptr<LocalGlobalSolver> reference_solver;  // the simulation's settings, prefactored once per model
   std::unique_ptr<SurfaceSkinning> skinning;     // default skinning settings (nearest_average)
   std::unique_ptr<DeformationMetrics> metrics;
@@ -168,10 +169,11 @@ std::unique_ptr<ModelContext> makeModel(const BundledScene& bundled, const Model
   model->choice = choice;
   model->particles_per_fibre = particles_per_fibre;
   model->reference_cap = reference_cap;
-  model->simulation = std::make_unique<MuscleSimulation>(
-      bundled.scene.muscles, bundled.scene.bones, referenceSimulationSettings(choice, particles_per_fibre, reference_cap));
+  model->simulation = std::make_unique<DeformationPipeline>(
+      bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
+      bench::particlesOnly(referenceSimulationSettings(choice, particles_per_fibre)));
   model->reference_solver =
-      std::make_unique<LocalGlobalSolver>(model->system(), model->simulation->settings().local_global);
+      std::make_unique<LocalGlobalSolver>(model->system(), model->simulation->settings().simulation.local_global);
   model->skinning = std::make_unique<SurfaceSkinning>(model->system(), model->simulation->muscles(), SkinningSettings{});
   model->metrics =
       std::make_unique<DeformationMetrics>(model->simulation->bones(), model->simulation->muscles(), model->system());
@@ -258,7 +260,7 @@ void addMetrics(bench::JsonRecords& records, const PointMetrics& metrics) {
 std::size_t neighbourFrame(std::size_t frame) { return frame > 0 ? frame - 1 : frame + 1; }
 
 // Converged shape of `frame` for `model` (a cold reference solve), recorded as a "reference" point. Solved with
-// snapshots (the same solver, settings and collision stage as the model's MuscleSimulation) so that how much it still
+// snapshots (the same solver, settings and collision stage as the model's pipeline) so that how much it still
 // moved over the second half of its iterations can be reported: a bound on how far it may be from the true minimum.
 struct ReferenceSolve {
   Eigen::Matrix3Xd position;
@@ -273,9 +275,10 @@ ReferenceSolve solveReference(ModelContext& model, const BundledScene& bundled, 
   CollisionWorld& world = model.world(BroadPhaseKind::octree);
   world.setBoneTransforms(transforms);
   LocalGlobalSolver& solver = *model.reference_solver;
-  const bench::ConvergenceRun run =
-      bench::coldSolve(model.system(), transforms, &world, model.reference_cap,
-                       [&](ParticleState& state, const AfterUpdateHook& hook) { return solver.solve(state, hook); });
+  const StoppingSettings stopping = referenceStopping(model.reference_cap);
+  const bench::ConvergenceRun run = bench::coldSolve(
+      model.system(), transforms, &world, model.reference_cap,
+      [&](ParticleState& state, const AfterUpdateHook& hook) { return solver.solve(state, stopping, hook); });
   ReferenceSolve result;
   result.position = run.final_position;
   result.stats = run.stats;
@@ -354,8 +357,6 @@ void runConfig(const Config& config, ModelContext& model, const BundledScene& bu
     VerletSettings settings;
     settings.dt_rule = config.dt_rule;
     if (config.dt_rule == TimeStepRule::fixed) settings.dt_s = config.dt_fraction * model.stability_bound_s;
-    settings.stopping_rule = StoppingRule::iterations;
-    settings.max_iterations = config.cap;
     verlet = std::make_unique<VerletSolver>(system, settings);
     dt_s = verlet->timeStep();  // the fixed step, or the adaptive rule's upper clamp
   } else {
@@ -363,14 +364,13 @@ void runConfig(const Config& config, ModelContext& model, const BundledScene& bu
     settings.quasi_static = true;
     settings.volume_weight = config.volume_weight;
     settings.lbfgs_history = config.lbfgs_history;
-    settings.stopping_rule = StoppingRule::iterations;
-    settings.max_iterations = config.cap;
-    // Prefactored once per model and settings and reused for every pose, as MuscleSimulation does; reported apart.
+    // Prefactored once per model and settings and reused for every pose, as the pipeline does; reported apart.
     local_global = std::make_unique<LocalGlobalSolver>(system, settings);
     factorisation_ms = local_global->factorisationMilliseconds();
   }
+  const StoppingSettings stopping = StoppingSettings::afterIterations(config.cap);
   const bench::SolveFunction solve = [&](ParticleState& state, const AfterUpdateHook& hook) {
-    return verlet ? verlet->solve(state, hook) : local_global->solve(state, hook);
+    return verlet ? verlet->solve(state, stopping, hook) : local_global->solve(state, stopping, hook);
   };
   const std::string solver_name = toString(config.solver);
   const std::string mode = config.solver == SolverKind::verlet ? "dynamic" : "quasi_static";
@@ -382,7 +382,7 @@ void runConfig(const Config& config, ModelContext& model, const BundledScene& bu
     world.setBoneTransforms(transforms);
     ParticleState start;
     if (config.warm) {
-      // What MuscleSimulation's StartMode::warm does after solving the frame before to convergence.
+      // What the pipeline's StartMode::warm does after solving the frame before to convergence.
       const std::size_t before = neighbourFrame(frame);
       start.position = model.previous_converged.at(frame);
       start.previous_position = start.position;
@@ -458,42 +458,47 @@ void printSummary(const std::string& title, const std::vector<Config>& configs,
   }
 }
 
-// The node's situation: the gait streamed through MuscleSimulation, every frame warm from the previous result with
-// `iterations_per_frame` iterations, as the node does. The cycle is played twice and the five reference frames are
-// measured on the second pass, so each starts warm from a stream that has run for a cycle. One curve point per
-// reference frame: iterations = iterations per frame, wall_ms = that frame's solve time.
+// The node's situation: the gait streamed through the node's stream protocol (the core's StreamSession, poses 1/60 s
+// apart), every frame warm from the previous result with `iterations_per_frame` iterations, as the node does. The
+// cycle is played twice and the five reference frames are measured on the second pass, so each starts warm from a
+// stream that has run for a cycle. One curve point per reference frame: iterations = iterations per frame, wall_ms =
+// that frame's solve time.
 void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history, int iterations_per_frame,
                   ModelContext& model, const BundledScene& bundled, const std::vector<std::size_t>& frames,
                   bench::JsonRecords& records) {
-  SimulationSettings settings = model.simulation->settings();
-  settings.solver_kind = solver;
-  settings.verlet.stopping_rule = StoppingRule::iterations;
-  settings.verlet.max_iterations = iterations_per_frame;
-  settings.local_global.stopping_rule = StoppingRule::iterations;
-  settings.local_global.max_iterations = iterations_per_frame;
-  settings.local_global.lbfgs_history = lbfgs_history;
-  MuscleSimulation stream(bundled.scene.muscles, bundled.scene.bones, settings);
+  PipelineSettings settings = model.simulation->settings();
+  settings.simulation.solver_kind = solver;
+  settings.simulation.local_global.lbfgs_history = lbfgs_history;
+  StreamSessionSettings stream_settings;  // the core's stream defaults (warm starts, the node's speed limits)
+  stream_settings.stopping = FrameStopping::of(StoppingSettings::afterIterations(iterations_per_frame));
+  StreamSession stream(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones, settings,
+                       stream_settings);
   const std::size_t frame_count = bundled.gait.frames.size();
   double solve_ms_sum = 0;
-  // Started as the node's stream starts them (the gait loops smoothly, so the second pass goes on warm).
-  bench::GaitStream starts(stream.bones(), PoseStreamSettings{});
+  // The gait loops smoothly, so the second pass goes on warm.
   std::size_t played = 0;
   for (int pass = 0; pass < 2; ++pass)
     for (std::size_t frame = 0; frame < frame_count; ++frame) {
       const Pose pose = gaitPose(bundled, frame);
-      const BoneTransforms posed = boneTransformsOf(stream.bones(), pose);
-      const FrameStats stats = stream.solve(pose, starts.start(played, posed));
-      starts.solved(played++, posed);
+      const FrameResult* solved =
+          bench::frameOf(stream.offer(bench::streamStamp(played++), boneTransformsOf(stream.bones(), pose), FrameWants{}));
       if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
+      if (!solved) {
+        std::printf("    %-44s frame %zu: no bone moved since the last solved pose, not solved again\n", label.c_str(),
+                    frame);
+        continue;
+      }
+      const FrameStats& stats = solved->stats;
       solve_ms_sum += stats.solver.total_ms;
       const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), pose);
       CollisionWorld& world = model.world(BroadPhaseKind::octree);
       world.setBoneTransforms(transforms);
       const PointMetrics metrics =
-          measurePoint(model, world, transforms, stream.state().position, model.reference.at(frame), false);
+          measurePoint(model, world, transforms, stream.pipeline().state().position, model.reference.at(frame), false);
       records.begin();
       addCommon(records, "curve", label, toString(solver), solver == SolverKind::verlet ? "dynamic" : "quasi_static",
-                model.choice.label, "fixed", solver == SolverKind::verlet ? stream.settings().verlet.dt_s : 0,
+                model.choice.label, "fixed",
+                solver == SolverKind::verlet ? stream.pipeline().settings().simulation.verlet.dt_s : 0,
                 solver == SolverKind::verlet ? kAutoStepFraction : 0, "octree", "warm", 0, model.particles_per_fibre,
                 frame);
       records.add("iterations", iterations_per_frame);
@@ -504,8 +509,11 @@ void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history
       records.add("streaming", 1);
       records.end();
     }
-  std::printf("    %-44s %3d iterations per frame: mean solve %.1f ms at the reference frames\n", label.c_str(),
-              iterations_per_frame, solve_ms_sum / static_cast<double>(frames.size()));
+  const StreamCounters& counters = stream.counters();
+  std::printf("    %-44s %3d iterations per frame: mean solve %.1f ms at the reference frames (%u poses: %u solved, %u "
+              "unchanged, %u restarts)\n",
+              label.c_str(), iterations_per_frame, solve_ms_sum / static_cast<double>(frames.size()), counters.offered,
+              counters.solved, counters.unchanged, counters.resets);
 }
 
 }  // namespace
@@ -670,23 +678,23 @@ int main(int argc, char** argv) {
                            budget.particles_per_fibre));
 
     if (is_default) {
-      // The checkpointed solves must be the solves MuscleSimulation runs: its own solve, stopped at a checkpoint's
+      // The checkpointed solves must be the solves the pipeline runs: its own solve, stopped at a checkpoint's
       // iteration count, has to land on that checkpoint.
       const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), gaitPose(bundled, check_frame));
       CollisionWorld& world = model->world(BroadPhaseKind::octree);
       const int same_cap = budget.local_global_cap;
-      SimulationSettings short_settings = model->simulation->settings();
-      short_settings.local_global.stopping_rule = StoppingRule::iterations;
-      short_settings.local_global.max_iterations = same_cap;
-      MuscleSimulation short_simulation(bundled.scene.muscles, bundled.scene.bones, short_settings);
-      short_simulation.solve(gaitPose(bundled, check_frame), StartMode::cold);
+      const PipelineSettings& short_settings = model->simulation->settings();
+      const StoppingSettings short_stopping = StoppingSettings::afterIterations(same_cap);
+      DeformationPipeline short_simulation(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
+                                           short_settings);
+      short_simulation.solve(transforms, StartMode::cold, FrameStopping::of(short_stopping), false, false);
       world.setBoneTransforms(transforms);
-      LocalGlobalSolver short_solver(model->system(), short_settings.local_global);
-      const bench::ConvergenceRun short_run =
-          bench::coldSolve(model->system(), transforms, &world, same_cap,
-                           [&](ParticleState& state, const AfterUpdateHook& hook) { return short_solver.solve(state, hook); });
+      LocalGlobalSolver short_solver(model->system(), short_settings.simulation.local_global);
+      const bench::ConvergenceRun short_run = bench::coldSolve(
+          model->system(), transforms, &world, same_cap,
+          [&](ParticleState& state, const AfterUpdateHook& hook) { return short_solver.solve(state, short_stopping, hook); });
       const double harness_difference_mm = bench::rmsMillimetres(short_run.final_position, short_simulation.state().position);
-      std::printf("  MuscleSimulation against the checkpointed solve after %d iterations: %.3g mm RMS apart\n", same_cap,
+      std::printf("  the pipeline against the checkpointed solve after %d iterations: %.3g mm RMS apart\n", same_cap,
                   harness_difference_mm);
 
       // Which solver gives the trustworthy converged shape: damped Verlet and L-BFGS with a shorter history, each run
@@ -699,20 +707,18 @@ int main(int argc, char** argv) {
       };
       std::vector<CheckSolve> checks;
       {
-        VerletSettings verlet_settings;
-        verlet_settings.stopping_rule = StoppingRule::displacement;
-        verlet_settings.displacement_tolerance_m = kReferenceToleranceM;
-        verlet_settings.max_iterations = budget.verlet_check_cap;
-        VerletSolver verlet(model->system(), verlet_settings);
+        VerletSolver verlet(model->system(), VerletSettings{});
+        const StoppingSettings verlet_stopping = referenceStopping(budget.verlet_check_cap);
         checks.push_back({"verlet", 0, bench::coldSolve(model->system(), transforms, &world, budget.verlet_check_cap,
                                                         [&](ParticleState& state, const AfterUpdateHook& hook) {
-                                                          return verlet.solve(state, hook);
+                                                          return verlet.solve(state, verlet_stopping, hook);
                                                         })});
-        LocalGlobalSolver lbfgs(model->system(), referenceSettings(budget.reference_cap, kCheckLbfgsHistory));
+        LocalGlobalSolver lbfgs(model->system(), referenceSettings(kCheckLbfgsHistory));
+        const StoppingSettings lbfgs_stopping = referenceStopping(budget.reference_cap);
         checks.push_back({"local_global", kCheckLbfgsHistory,
                           bench::coldSolve(model->system(), transforms, &world, budget.reference_cap,
                                            [&](ParticleState& state, const AfterUpdateHook& hook) {
-                                             return lbfgs.solve(state, hook);
+                                             return lbfgs.solve(state, lbfgs_stopping, hook);
                                            })});
       }
       for (const CheckSolve& check : checks) {
@@ -835,11 +841,6 @@ int main(int argc, char** argv) {
   printSummary("frame " + std::to_string(check_frame) + " only, the pose whose converged shape settles best",
                configs, check_summaries);
 
-  const std::string path = options.out_dir + "/speed_vs_error.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s in %.0f s\n", path.c_str(), secondsSince(start));
-  return 0;
+  std::printf("speed_vs_error done in %.0f s\n", secondsSince(start));
+  return bench::finish(records, options, "speed_vs_error.json");
 }

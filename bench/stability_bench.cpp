@@ -1,15 +1,21 @@
 // Stability on hard cases, on the bundled scene (the 13 thigh13 muscles, 20 particles per fibre, node defaults), plus
-// the 2019 PBD thesis' femur flexion scenario on our data. Writes out/bench/stability.json: one object per case.
+// the 2019 PBD thesis' femur flexion scenario on our data. Every frame stops as the node's frames do (its frame
+// stopping); the multi-frame motions are played through the node's stream protocol (the core's StreamSession, poses
+// 1/60 s apart), single poses and the forced-warm jump through the pipeline directly. Writes out/bench/stability.json:
+// one object per case.
 //
 //   stability_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
-#include "gait_stream.hpp"
 #include "node_defaults.hpp"
+#include "stream_play.hpp"
 
-#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
@@ -31,7 +37,7 @@ Pose jointPose(const BundledScene& bundled, double hip_flexion_rad, double knee_
   return poseFor(bundled, {{"hip_flexion_r", hip_flexion_rad}, {"knee_angle_r", -knee_flexion_rad}});
 }
 
-Eigen::Matrix3Xd pretransformOf(const MuscleSimulation& simulation, const Pose& pose) {
+Eigen::Matrix3Xd pretransformOf(const DeformationPipeline& simulation, const Pose& pose) {
   ParticleState state = restState(simulation.system());
   rigidPretransform(simulation.system(), boneTransformsOf(simulation.bones(), pose), state);
   return state.position;
@@ -68,7 +74,7 @@ struct Outcome {
   std::unique_ptr<DeformationMetrics> metrics;
 };
 
-void accumulate(Outcome& outcome, const MuscleSimulation& simulation, const FrameStats& stats) {
+void accumulate(Outcome& outcome, const DeformationPipeline& simulation, const FrameStats& stats) {
   outcome.recoveries += stats.solver.divergence_recoveries;
   outcome.diverged = outcome.diverged || stats.solver.diverged;
   outcome.finite = outcome.finite && stats.finite && simulation.state().position.allFinite() && statsFinite(stats);
@@ -131,32 +137,84 @@ class Report {
   std::chrono::steady_clock::time_point start_;
 };
 
-// One pose solved on a fresh thigh13 simulation, starting as `start` after an optional rest frame.
+// The node's pipeline settings (particles only) with `simulation` for the model and solver, and how its frames stop.
+struct Setup {
+  PipelineSettings pipeline;
+  StreamSessionSettings stream;
+};
+
+Setup setupOf(const CoreSettings& node, const SimulationSettings& simulation) {
+  Setup setup{bench::particlesOnly(node.pipeline), node.stream};
+  setup.pipeline.simulation = simulation;
+  return setup;
+}
+
+std::unique_ptr<DeformationPipeline> pipelineOf(const Scene& scene, const Setup& setup) {
+  return std::make_unique<DeformationPipeline>(scene.muscle_descriptions, scene.muscles, scene.bones, setup.pipeline);
+}
+
+// A motion played as the node's stream plays poses, 1/60 s apart: `offer` solves the next pose, or says how the stream
+// took it when it solved nothing.
+class Stream {
+ public:
+  Stream(const Scene& scene, const Setup& setup)
+      : session_(scene.muscle_descriptions, scene.muscles, scene.bones, setup.pipeline, setup.stream) {}
+  // The frame the stream solved for `pose`; nullptr when it solved nothing (no bone moved).
+  const FrameResult* offer(const Pose& pose) {
+    const StreamStep step = session_.offer(bench::streamStamp(played_++), boneTransformsOf(session_.bones(), pose),
+                                           FrameWants{});
+    last_cold_ = step.cold;
+    return bench::frameOf(step);
+  }
+  bool lastCold() const { return last_cold_; }
+  const DeformationPipeline& pipeline() const { return session_.pipeline(); }
+  const StreamCounters& counters() const { return session_.counters(); }
+
+ private:
+  StreamSession session_;
+  std::size_t played_ = 0;
+  bool last_cold_ = false;
+};
+
+// One pose solved on a fresh thigh13 pipeline, starting as `start` after an optional rest frame.
 // How the posed frame starts after the rest frame: warm whatever the jump, or as the node's stream decides (cold at a
 // discontinuity: a bone faster than its limits between two frames 1/60 s apart).
 enum class After { cold, warm, stream };
 
 void poseCase(Report& report, const BundledScene& bundled, const std::string& name, const std::string& description,
-              const SimulationSettings& settings, const Pose& pose, After after,
-              const PoseStreamSettings& stream_settings = {}) {
-  MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
-  const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
-  StartMode start = after == After::cold ? StartMode::cold : StartMode::warm;
-  if (after != After::cold) {
-    const BoneTransforms rest = boneTransformsOf(simulation.bones(), jointPose(bundled, 0, 0));
-    simulation.solve(rest, StartMode::warm);
-    if (after == After::stream) {
-      bench::GaitStream stream(simulation.bones(), stream_settings);
-      stream.solved(0, rest);
-      start = stream.start(1, boneTransformsOf(simulation.bones(), pose));
-      std::printf("[%6.1f s] %s: the stream starts the posed frame %s\n", report.elapsedSeconds(), name.c_str(),
-                  start == StartMode::cold ? "cold" : "warm");
-    }
+              const Setup& setup, const Pose& pose, After after) {
+  const Pose rest = jointPose(bundled, 0, 0);
+  std::unique_ptr<DeformationPipeline> own;
+  std::unique_ptr<Stream> stream;
+  const FrameResult* frame = nullptr;
+  if (after == After::stream) {
+    stream = std::make_unique<Stream>(bundled.scene, setup);
+    stream->offer(rest);
+    frame = stream->offer(pose);
+    std::printf("[%6.1f s] %s: the stream starts the posed frame %s\n", report.elapsedSeconds(), name.c_str(),
+                !frame ? "not at all (no bone moved)" : stream->lastCold() ? "cold" : "warm");
+  } else {
+    own = pipelineOf(bundled.scene, setup);
+    const FrameStopping& stopping = setup.stream.stopping;
+    if (after == After::warm)
+      own->solve(boneTransformsOf(own->bones(), rest), StartMode::cold, stopping, false, false);
+    frame = &own->solve(boneTransformsOf(own->bones(), pose), after == After::cold ? StartMode::cold : StartMode::warm,
+                        stopping, false, false);
   }
+  const DeformationPipeline& simulation = stream ? stream->pipeline() : *own;
+  const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
   Outcome outcome;
-  accumulate(outcome, simulation, simulation.solve(pose, start));
+  if (frame) accumulate(outcome, simulation, frame->stats);
   report.add(name, description, outcome, bench::rmsMillimetres(simulation.state().position, pretransformOf(simulation, pose)),
              maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
+}
+
+// A motion's stream counters, when the stream did anything but solve every pose warm after the first.
+void reportStream(const Report& report, const std::string& name, const Stream& stream) {
+  const StreamCounters& c = stream.counters();
+  if (c.unchanged > 0 || c.refined > 0 || c.resets > 0 || c.failed > 0)
+    std::printf("[%6.1f s] %s: of %u poses the stream left %u unchanged, refined %u, restarted %u times\n",
+                report.elapsedSeconds(), name.c_str(), c.offered, c.unchanged, c.refined, c.resets);
 }
 
 }  // namespace
@@ -167,88 +225,102 @@ int main(int argc, char** argv) {
   Report report(records);
   constexpr double kDegree = 3.14159265358979323846 / 180.0;
 
-  const bench::NodeDefaults node = bench::loadNodeDefaults();  // config/muscle_deformation.yaml
-  const SimulationSettings settings = node.simulation;
+  const CoreSettings node = bench::loadNodeDefaults();  // config/muscle_deformation.yaml
+  const SimulationSettings settings = node.pipeline.simulation;
   const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
   std::printf("[%6.1f s] loaded thigh13\n", report.elapsedSeconds());
   const Pose walking = jointPose(thigh, 0.5, 1.0);
 
-  poseCase(report, thigh, "pose_jump_90", "rest to hip flexion 90 deg in one frame, forced warm", settings,
+  const Setup setup = setupOf(node, settings);
+  const FrameStopping& stopping = setup.stream.stopping;
+
+  poseCase(report, thigh, "pose_jump_90", "rest to hip flexion 90 deg in one frame, forced warm", setup,
            jointPose(thigh, 90 * kDegree, 0), After::warm);
   poseCase(report, thigh, "pose_jump_90_stream",
-           "rest to hip flexion 90 deg one frame (1/60 s) later, started as the node's stream decides", settings,
-           jointPose(thigh, 90 * kDegree, 0), After::stream, node.stream);
-  poseCase(report, thigh, "gait_extreme", "hip flexion 110 deg, knee flexion 130 deg, cold", settings,
+           "rest to hip flexion 90 deg one frame (1/60 s) later, started as the node's stream decides", setup,
+           jointPose(thigh, 90 * kDegree, 0), After::stream);
+  poseCase(report, thigh, "gait_extreme", "hip flexion 110 deg, knee flexion 130 deg, cold", setup,
            jointPose(thigh, 110 * kDegree, 130 * kDegree), After::cold);
 
   double auto_step_s = 0;
   {
-    MuscleSimulation probe(thigh.scene.muscles, thigh.scene.bones, settings);
-    auto_step_s = VerletSolver(probe.system(), settings.verlet).timeStep();
+    const std::unique_ptr<DeformationPipeline> probe = pipelineOf(thigh.scene, setup);
+    auto_step_s = VerletSolver(probe->system(), settings.verlet).timeStep();
   }
   SimulationSettings long_step = settings;
   long_step.verlet.dt_s = 10 * auto_step_s / 0.9;  // the automatic step is 0.9 of the largest stable one
-  poseCase(report, thigh, "dt_x10", "dt 10 x the largest stable step, hip 0.5 rad knee 1.0 rad, cold", long_step,
-           walking, After::cold);
+  poseCase(report, thigh, "dt_x10", "dt 10 x the largest stable step, hip 0.5 rad knee 1.0 rad, cold",
+           setupOf(node, long_step), walking, After::cold);
   SimulationSettings stiff = settings;
   stiff.model.spring_material_n *= 1000;
   stiff.verlet.dt_s = auto_step_s;
-  poseCase(report, thigh, "stiffness_x1000", "springs 1000 x stiffer, the previous automatic step, cold", stiff, walking,
-           After::cold);
+  poseCase(report, thigh, "stiffness_x1000", "springs 1000 x stiffer, the previous automatic step, cold",
+           setupOf(node, stiff), walking, After::cold);
 
   // Interpenetration: the segmented muscles overlap each other and the substituted hip bone at rest; the model must
   // keep the rest pose still and solve a pose without a blow-up.
   {
-    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings);
+    const std::unique_ptr<DeformationPipeline> pipeline = pipelineOf(thigh.scene, setup);
+    const DeformationPipeline& simulation = *pipeline;
     const RestOverlapSummary& overlaps = simulation.restOverlaps();
     std::printf("[%6.1f s] thigh13 rest overlaps: %d muscle-muscle, %d muscle-bone sphere pairs cleared\n",
                 report.elapsedSeconds(), overlaps.muscle_muscle_pairs, overlaps.muscle_bone_pairs);
     const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
     Outcome outcome;
-    accumulate(outcome, simulation, simulation.solve(jointPose(thigh, 0, 0), StartMode::cold));
+    accumulate(outcome, simulation,
+               pipeline->solve(boneTransformsOf(simulation.bones(), jointPose(thigh, 0, 0)), StartMode::cold, stopping,
+                               false, false)
+                   .stats);
     const double rest_rms_mm = bench::rmsMillimetres(simulation.state().position, simulation.system().rest_position);
     report.add("interpenetrated_rest", "segmented overlaps at rest, rest pose solved", outcome, rest_rms_mm,
                maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
   }
 
-  // Tunnelling: femur and tibia swung 0.2 rad per frame (about 8 cm at the knee, many particle radii), warm.
+  // Tunnelling: femur and tibia swung 0.2 rad per frame (about 8 cm at the knee, many particle radii), warm: the
+  // node's stream takes these poses 1/60 s apart as a smooth motion (no bone beyond its speed limits).
   {
-    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings);
+    Stream stream(thigh.scene, setup);
+    const DeformationPipeline& simulation = stream.pipeline();
     const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
     Outcome outcome;
-    simulation.solve(jointPose(thigh, 0, 0), StartMode::warm);
+    stream.offer(jointPose(thigh, 0, 0));
     Pose pose;
     for (int frame = 1; frame <= 5; ++frame) {
       pose = jointPose(thigh, 0.2 * frame, 0.2 * frame);
-      accumulate(outcome, simulation, simulation.solve(pose, StartMode::warm));
+      if (const FrameResult* solved = stream.offer(pose)) accumulate(outcome, simulation, solved->stats);
     }
+    reportStream(report, "fast_bones", stream);
     report.add("fast_bones", "hip and knee 0.2 rad per warm frame to 1 rad (bone faster than a radius per frame)",
                outcome, bench::rmsMillimetres(simulation.state().position, pretransformOf(simulation, pose)),
                maxVolumeErrorPct(tetrahedra, simulation.state().position), simulation.system());
   }
 
-  // The 2019 PBD thesis' scenario: the femur flexes 1 rad forward and back over 200 frames, warm every frame; how far
-  // does the gluteus maximus end from its starting shape, and how deep do particles sink into bone on the way.
+  // The 2019 PBD thesis' scenario: the femur flexes 1 rad forward and back over 200 frames, warm every frame (the
+  // node's stream, poses 1/60 s apart); how far does the gluteus maximus end from its starting shape, and how deep do
+  // particles sink into bone on the way.
   {
     const BundledScene with_gluteus = loadBundledScene(MD_PACKAGE_DIR, {"thigh13", "gluteus_maximus"});
-    MuscleSimulation simulation(with_gluteus.scene.muscles, with_gluteus.scene.bones, settings);
+    Stream stream(with_gluteus.scene, setup);
+    const DeformationPipeline& simulation = stream.pipeline();
     const MassSpringSystem& system = simulation.system();
     int gluteus = -1;
     for (int m = 0; m < system.muscleCount(); ++m)
       if (system.muscle_name[m] == "gluteus_maximus") gluteus = m;
     const Eigen::Index begin = system.muscle_begin[gluteus], count = system.muscle_begin[gluteus + 1] - begin;
     const int frames = options.quick ? 40 : 200;
-    simulation.solve(jointPose(with_gluteus, 0, 0), StartMode::warm);
+    stream.offer(jointPose(with_gluteus, 0, 0));
     const Eigen::Matrix3Xd start = simulation.state().position.middleCols(begin, count);
     Outcome outcome;
     double peak_rms_mm = 0;
     for (int frame = 1; frame <= frames; ++frame) {
       const double hip_rad = 1.0 - std::abs(1.0 - 2.0 * frame / frames);  // 0 -> 1 rad -> 0
-      accumulate(outcome, simulation, simulation.solve(jointPose(with_gluteus, hip_rad, 0), StartMode::warm));
+      if (const FrameResult* solved = stream.offer(jointPose(with_gluteus, hip_rad, 0)))
+        accumulate(outcome, simulation, solved->stats);
       peak_rms_mm = std::max(peak_rms_mm, bench::rmsMillimetres(simulation.state().position.middleCols(begin, count), start));
       if (frame % 20 == 0)
         std::printf("[%6.1f s]   pbd frame %d/%d, hip %.2f rad\n", report.elapsedSeconds(), frame, frames, hip_rad);
     }
+    reportStream(report, "pbd_femur_flexion", stream);
     const double end_rms_mm = bench::rmsMillimetres(simulation.state().position.middleCols(begin, count), start);
     records.begin();
     records.add("case", std::string("pbd_femur_flexion"));
@@ -277,11 +349,5 @@ int main(int argc, char** argv) {
                 outcome.recoveries, outcome.finite ? "finite" : "NOT FINITE");
   }
 
-  const std::string path = options.out_dir + "/stability.json";
-  if (!records.write(path)) {
-    std::fprintf(stderr, "cannot write %s\n", path.c_str());
-    return 1;
-  }
-  std::printf("wrote %s\n", path.c_str());
-  return 0;
+  return bench::finish(records, options, "stability.json");
 }

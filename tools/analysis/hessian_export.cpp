@@ -5,8 +5,9 @@
 //   hessian_export SELECTION SWEEPS FRAME OUT.bin [TISSUE_RELAXATION_S]
 //   (SELECTION: a muscle name or tag, or "all"; e.g. hessian_export thigh13 2000 30 /tmp/thigh13.bin 0)
 #include "node_defaults.hpp"
+#include "stream_play.hpp"
 
-#include "muscle_deformation/core/pipeline/simulation.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <cstdint>
@@ -34,15 +35,21 @@ int main(int argc, char** argv) {
   const int frame = std::atoi(argv[3]);
   const BundledScene bundled =
       loadBundledScene(MD_PACKAGE_DIR, selection == "all" ? std::vector<std::string>{} : std::vector<std::string>{selection});
-  SimulationSettings settings = bench::loadNodeDefaults().simulation;
-  settings.solver_kind = SolverKind::block_descent;
-  settings.stopping.rule = StoppingRule::iterations;
-  settings.stopping.max_iterations = sweeps;
-  settings.stopping.limits = {};
-  shareStoppingRule(settings);
-  settings.block_descent.tissue_relaxation_s = argc > 5 ? std::atof(argv[5]) : 0.0;
-  MuscleSimulation simulation(bundled.scene.muscles, bundled.scene.bones, settings);
-  const FrameStats stats = simulation.solve(gaitPose(bundled, static_cast<std::size_t>(frame)), StartMode::cold);
+  const CoreSettings node = bench::loadNodeDefaults();
+  PipelineSettings settings = bench::particlesOnly(node.pipeline);
+  settings.simulation.solver_kind = SolverKind::block_descent;
+  settings.simulation.block_descent.tissue_relaxation_s = argc > 5 ? std::atof(argv[5]) : 0.0;
+  FrameStopping stopping = node.stream.stopping;
+  stopping.sweeps.rule = StoppingRule::iterations;
+  stopping.sweeps.max_iterations = sweeps;
+  stopping.sweeps.limits = {};
+  DeformationPipeline simulation(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
+                                 settings);
+  const FrameStats stats =
+      simulation
+          .solve(boneTransformsOf(simulation.bones(), gaitPose(bundled, static_cast<std::size_t>(frame))),
+                 StartMode::cold, stopping, false, false)
+          .stats;
   const MassSpringSystem& system = simulation.system();
   const Eigen::Matrix3Xd& x = simulation.state().position;
   ContactSet contacts;
