@@ -66,7 +66,9 @@ TEST(Parameters, TheDocumentedFileHoldsTheDefaultsAndNamesEveryParameterTheNodeR
   for (const std::string& name : parameters.asked()) {
     const bool explained_elsewhere = name == "scene"                                         // a launch argument
                                      || name == "reset_translation_m" || name == "reset_rotation_rad";  // replaced
-    if (!explained_elsewhere) EXPECT_TRUE(documented.count(name)) << name << " is read but not documented";
+    if (!explained_elsewhere) {
+      EXPECT_TRUE(documented.count(name)) << name << " is read but not documented";
+    }
   }
 
   // "Every value below is the node's default": the file changes nothing. The core's settings through their table
