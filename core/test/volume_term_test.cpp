@@ -9,7 +9,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstdlib>
 #include <random>
 
 using namespace muscle_deformation;
@@ -69,8 +68,10 @@ BoneTransforms shortened(double shortening) {
 }
 
 const FrameStopping kConverged = FrameStopping::of(StoppingSettings::atResidual(1e-6, 20000));
-// The volume term's stiffness these tests run (the node's default: config/muscle_deformation.yaml).
-const double kVolumeStiffness = std::getenv("MD_K") ? std::atof(std::getenv("MD_K")) : 100;
+// The volume term's stiffness these tests run: a cylinder shortened 30 % keeps its volume within 2 % from about 30 up
+// (measured 2026-11-26: 0.9925 of rest at 100). The node's default (config/muscle_deformation.yaml) is chosen on the
+// bundled gait instead, where one sweep a frame must also follow the joints.
+constexpr double kVolumeStiffness = 100;
 
 double skinnedVolumeOf(const DeformationPipeline& pipeline) {
   const SkinnedVolume volume(*pipeline.skinning(), pipeline.system());

@@ -26,6 +26,8 @@ std::string validate(const ModelSettings& s) {
     return "spring_material_n must be a finite value > 0";
   if (!(s.density_kg_per_m3 > 0) || !std::isfinite(s.density_kg_per_m3))
     return "density_kg_per_m3 must be a finite value > 0";
+  if (!(s.tendon_stiffness_ratio > 0) || !std::isfinite(s.tendon_stiffness_ratio))
+    return "tendon_stiffness_ratio must be a finite value > 0";
   if (!(s.boundary_fibre_fraction >= 0 && s.boundary_fibre_fraction <= 1))
     return "boundary_fibre_fraction must be in [0, 1]";
   return {};
@@ -285,14 +287,21 @@ std::string mostlyInsideBoneWarning(const Muscle& muscle, const std::vector<Bone
 struct PendingTendon {
   std::int32_t particle;
   int bone;
+  bool origin_end;  // the fibre's first particle (its next one inward is particle + 1), else its last
+  // The tendon's path beyond the fibre end when the muscle gives one (Muscle::origin_path / insertion_path), from the
+  // point nearest the belly to the site; empty: the bone's nearest vertex.
+  std::vector<std::pair<int, Eigen::Vector3d>> path;
 };
 
 // Inserts each tendon's anchor, a particle fixed to the bone at the bone vertex nearest the fibre end, after its
 // muscle's particles (muscle ranges stay contiguous), renumbers `spring_pairs` and adds one spring per tendon.
+// Tendon springs have their own stiffness (`tendon_stiffness`: spring index -> N/m), stiffness_ratio x material_n over
+// the tendon's whole length.
 void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTendon>& tendons,
                          const std::vector<Bone>& bones, const BoneQueries& queries,
                          std::vector<std::pair<std::int32_t, std::int32_t>>& spring_pairs,
-                         std::vector<double>& spring_rest, ModelBuildReport& report) {
+                         std::vector<double>& spring_rest, double material_n, double stiffness_ratio, bool keep_line,
+                         std::vector<std::pair<std::int32_t, double>>& tendon_stiffness, ModelBuildReport& report) {
   if (tendons.empty()) return;
   const int muscle_count = system.muscleCount();
   std::vector<std::vector<PendingTendon>> by_muscle(static_cast<std::size_t>(muscle_count));
@@ -349,23 +358,57 @@ void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTend
     MuscleBuildSummary* summary = mi < report.muscles.size() ? &report.muscles[mi] : nullptr;
     for (const PendingTendon& t : by_muscle[mi]) {
       const Eigen::Vector3d fibre_end = system.rest_position.col(t.particle);
-      const auto b = static_cast<std::size_t>(t.bone);
-      const Eigen::Vector3d on_bone = bones[b].surface.vertices.col(queries.vertices[b].nearest(fibre_end).first);
+      // The anchor: the path's first point (nearest the belly) on its bone, or the attachment bone's nearest vertex.
+      const int anchor_bone = t.path.empty() ? t.bone : t.path.front().first;
+      const auto b = static_cast<std::size_t>(anchor_bone);
+      const Eigen::Vector3d on_bone = t.path.empty()
+                                          ? Eigen::Vector3d(bones[b].surface.vertices.col(queries.vertices[b].nearest(fibre_end).first))
+                                          : t.path.front().second;
       const auto a = static_cast<std::size_t>(anchor);
       grown.rest_position.col(anchor) = on_bone;
       grown.mass[anchor] = system.mass[t.particle];  // never integrated: fixed
       grown.is_fixed[a] = 1;
-      grown.fixed_bone[a] = t.bone;
+      grown.fixed_bone[a] = anchor_bone;
       grown.muscle_of[a] = m;
       grown.fibre_of[a] = kTendonAnchor;
       grown.sample_of[a] = system.fibre_of[static_cast<std::size_t>(t.particle)];  // the fibre it ends
-      grown.blend_bone(0, anchor) = t.bone;
+      grown.blend_bone(0, anchor) = anchor_bone;
       grown.blend_weight(0, anchor) = 1.0;
-      const double length = (fibre_end - on_bone).norm();
-      if (length > 1e-9) {
+      const double to_anchor = (fibre_end - on_bone).norm();
+      double length = to_anchor;  // the whole tendon: to the anchor, then along the path to the site
+      TendonPath tendon_path;
+      tendon_path.anchor = anchor;
+      tendon_path.points.resize(3, static_cast<Eigen::Index>(t.path.size() > 0 ? t.path.size() - 1 : 0));
+      for (std::size_t k = 1; k < t.path.size(); ++k) {
+        length += (t.path[k].second - t.path[k - 1].second).norm();
+        tendon_path.bones.push_back(t.path[k].first);
+        tendon_path.points.col(static_cast<Eigen::Index>(k - 1)) = t.path[k].second;
+      }
+      if (to_anchor > 1e-9) {
+        tendon_path.spring = static_cast<std::int32_t>(spring_pairs.size());
+        tendon_path.length_m = length;
         spring_pairs.emplace_back(newIndex(t.particle), anchor);
-        spring_rest.push_back(length);
+        spring_rest.push_back(to_anchor);
+        tendon_stiffness.emplace_back(tendon_path.spring, stiffness_ratio * material_n / length);
+        if (!tendon_path.bones.empty()) grown.tendon_paths.push_back(tendon_path);
         if (summary) ++summary->springs;
+        // The tendon keeps its line with the fibre's end: a second spring from the anchor to the fibre's next particle,
+        // so that a tendon pulled shorter (the joint closing) pushes the belly's end along the fibre instead of letting
+        // it swing round the anchor at the tendon's length.
+        const std::int32_t inward = t.particle + (t.origin_end ? 1 : -1);
+        if (keep_line && inward >= 0 && inward < static_cast<std::int32_t>(system.particleCount()) &&
+            system.fibre_of[static_cast<std::size_t>(inward)] == system.fibre_of[static_cast<std::size_t>(t.particle)] &&
+            system.muscle_of[static_cast<std::size_t>(inward)] == m) {
+          const double to_inward = (system.rest_position.col(inward) - on_bone).norm();
+          TendonPath line = tendon_path;
+          line.spring = static_cast<std::int32_t>(spring_pairs.size());
+          line.length_m = length - to_anchor + to_inward;
+          spring_pairs.emplace_back(newIndex(inward), anchor);
+          spring_rest.push_back(to_inward);
+          tendon_stiffness.emplace_back(line.spring, stiffness_ratio * material_n / line.length_m);
+          if (!line.bones.empty()) grown.tendon_paths.push_back(line);
+          if (summary) ++summary->springs;
+        }
       }
       if (summary) {
         ++summary->tendons;
@@ -373,6 +416,7 @@ void insertTendonAnchors(MassSpringSystem& system, const std::vector<PendingTend
         ++summary->fixed_particles;
         ++summary->fixed_by_bone[bones[b].name];
         summary->longest_tendon_m = std::max(summary->longest_tendon_m, length);
+        if (!t.path.empty()) ++summary->tendons_to_sites;
       }
       ++anchor;
     }
@@ -535,9 +579,20 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
             }
           }
         }
-        // Not within attachment_distance_m of that bone (the loop above would have found it): joined by a tendon.
+        // Not within attachment_distance_m of that bone (the loop above would have found it): joined by a tendon, along
+        // the muscle's tendon path when it has one (nearest the belly first, the site last).
         if (settings.tendons && attached != kNoBone) {
-          tendons.push_back({static_cast<std::int32_t>(i), attached});
+          PendingTendon tendon{static_cast<std::int32_t>(i), attached, fibre_start, {}};
+          const std::vector<AttachmentSite>& sites = fibre_start ? muscle.origin_path : muscle.insertion_path;
+          for (std::size_t k = 0; k < sites.size(); ++k) {
+            const AttachmentSite& site = fibre_start ? sites[sites.size() - 1 - k] : sites[k];
+            const auto bone = std::find_if(bones.begin(), bones.end(), [&](const Bone& b) { return b.name == site.bone; });
+            if (bone == bones.end())
+              throw ModelError("muscle '" + muscle.name + "': its tendon path names bone '" + site.bone +
+                               "', which is not among the bones");
+            tendon.path.emplace_back(static_cast<int>(bone - bones.begin()), site.point);
+          }
+          tendons.push_back(std::move(tendon));
           attached = kNoBone;
         }
       }
@@ -611,7 +666,9 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     out.muscles.push_back(summary);
   }
 
-  insertTendonAnchors(system, tendons, bones, bone_queries, spring_pairs, spring_rest, out);
+  std::vector<std::pair<std::int32_t, double>> tendon_stiffness;
+  insertTendonAnchors(system, tendons, bones, bone_queries, spring_pairs, spring_rest, settings.spring_material_n,
+                      settings.tendon_stiffness_ratio, settings.tendon_keeps_line, tendon_stiffness, out);
   const std::size_t spring_count = spring_pairs.size();
   system.springs.first.resize(spring_count);
   system.springs.second.resize(spring_count);
@@ -623,6 +680,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.rest_length[static_cast<Eigen::Index>(s)] = spring_rest[s];
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
+  for (const auto& [spring, stiffness] : tendon_stiffness) system.springs.stiffness[spring] = stiffness;
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
   for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;

@@ -70,6 +70,35 @@ void moveAttachments(const MassSpringSystem& system, const BoneTransforms& trans
   }
 }
 
+double tendonPathBeyondAnchor(const MassSpringSystem& system, const TendonPath& tendon, const BoneTransforms& transforms) {
+  const auto placed = [&](int bone, const Eigen::Vector3d& rest) {
+    return bone != kNoBone && bone < static_cast<int>(transforms.size()) ? Eigen::Vector3d(transforms[bone] * rest) : rest;
+  };
+  Eigen::Vector3d previous =
+      placed(system.fixed_bone[static_cast<std::size_t>(tendon.anchor)], system.rest_position.col(tendon.anchor));
+  double length = 0;
+  for (std::size_t k = 0; k < tendon.bones.size(); ++k) {
+    const Eigen::Vector3d next = placed(tendon.bones[k], tendon.points.col(static_cast<Eigen::Index>(k)));
+    length += (next - previous).norm();
+    previous = next;
+  }
+  return length;
+}
+
+bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& transforms) {
+  bool changed = false;
+  for (const TendonPath& tendon : system.tendon_paths) {
+    const double rest =
+        std::max(kMinTendonRestLengthM, tendon.length_m - tendonPathBeyondAnchor(system, tendon, transforms));
+    double& current = system.springs.rest_length[tendon.spring];
+    if (rest != current) {
+      current = rest;
+      changed = true;
+    }
+  }
+  return changed;
+}
+
 ParticleState restState(const MassSpringSystem& system) {
   ParticleState state;
   state.position = system.rest_position;

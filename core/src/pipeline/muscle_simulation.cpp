@@ -157,6 +157,8 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   stats.has_collision = collision_ != nullptr;
   stats.warm_started = start == StartMode::warm && has_previous_;
   const bool drag = solver_->dragsTissue();
+  // Tendons over bones beyond their anchor keep their whole length: their springs' rest lengths follow the pose.
+  if (updateTendonRestLengths(system_, transforms)) solver_->restLengthsChanged();
   const bool predict = drag && settings_.prediction.predict_start && stats.warm_started &&
                        correction_.cols() == system_.particleCount();
   ParticleState predicted;

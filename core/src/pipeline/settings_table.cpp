@@ -62,6 +62,14 @@ std::vector<SettingSpec> buildTable() {
               "a fibre end further than attachment_distance_m from its bone is joined to the bone by a tendon spring "
               "instead of being fixed where it lies",
               [model](CoreSettings& s) -> bool& { return model(s).tendons; }),
+      number("tendon_stiffness_ratio", "", 1e-6, 1e9,
+             "a tendon's stiffness is this x spring_material_n over its whole length (the muscle's springs: "
+             "spring_material_n over their rest length), so that a joint's motion stretches the belly, not the tendon",
+             [model](CoreSettings& s) -> double& { return model(s).tendon_stiffness_ratio; }),
+      boolean("tendon_keeps_line",
+              "a tendon also joins its anchor to the fibre's next particle, so that it pushes the belly along the fibre "
+              "when a joint closes instead of letting the fibre's end swing round the anchor",
+              [model](CoreSettings& s) -> bool& { return model(s).tendon_keeps_line; }),
       number("spring_material_n", "N", 1e-9, 1e9, "spring stiffness is this divided by the rest length",
              [model](CoreSettings& s) -> double& { return model(s).spring_material_n; }),
       number("density_kg_per_m3", "kg/m^3", 1e-6, 1e6, "muscle density, for the particle masses",

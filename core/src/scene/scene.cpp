@@ -40,6 +40,35 @@ std::string requiredString(const YAML::Node& map, const char* key, const std::st
   return value.Scalar();
 }
 
+// A list of {link, point: [x, y, z]} (a tendon path), or nothing when the key is absent.
+std::vector<SitePoint> parseSitePath(const YAML::Node& node, const std::string& key, const std::string& path,
+                                     const std::string& named) {
+  std::vector<SitePoint> points;
+  const YAML::Node list = node[key];
+  if (!list.IsDefined() || list.IsNull()) return points;
+  if (!list.IsSequence()) throw SceneError(where(path, list.Mark()) + ": '" + key + "' of " + named + " must be a list");
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const std::string what = "'" + key + "' point #" + std::to_string(i + 1) + " of " + named;
+    if (!list[i].IsMap()) throw SceneError(where(path, list[i].Mark()) + ": " + what + " must be {link, point}");
+    SitePoint site;
+    site.link = requiredString(list[i], "link", path, what);
+    const YAML::Node xyz = list[i]["point"];
+    if (!xyz.IsDefined() || !xyz.IsSequence() || xyz.size() != 3)
+      throw SceneError(where(path, list[i].Mark()) + ": " + what + " needs 'point: [x, y, z]' (metres, link frame)");
+    for (std::size_t k = 0; k < 3; ++k) {
+      try {
+        site.point[static_cast<Eigen::Index>(k)] = xyz[k].as<double>();
+      } catch (const YAML::Exception&) {
+        throw SceneError(where(path, xyz[k].Mark()) + ": " + what + ": '" + xyz[k].Scalar() + "' is not a number");
+      }
+      if (!std::isfinite(site.point[static_cast<Eigen::Index>(k)]))
+        throw SceneError(where(path, xyz[k].Mark()) + ": " + what + ": coordinates must be finite");
+    }
+    points.push_back(site);
+  }
+  return points;
+}
+
 MuscleDescription parseMuscle(const YAML::Node& node, std::size_t index, const std::string& path) {
   const std::string what = "muscle #" + std::to_string(index + 1);
   if (!node.IsMap()) throw SceneError(where(path, node.Mark()) + ": " + what + " must be a map of keys");
@@ -80,6 +109,18 @@ MuscleDescription parseMuscle(const YAML::Node& node, std::size_t index, const s
     for (const auto& tag : tags) {
       if (!tag.IsScalar()) throw SceneError(where(path, tag.Mark()) + ": tags of " + named + " must be strings");
       m.tags.push_back(tag.Scalar());
+    }
+  }
+  m.origin_path = parseSitePath(node, "origin_path", path, named);
+  m.insertion_path = parseSitePath(node, "insertion_path", path, named);
+  const YAML::Node references = node["reference_muscles"];
+  if (references.IsDefined() && !references.IsNull()) {
+    if (!references.IsSequence())
+      throw SceneError(where(path, references.Mark()) + ": 'reference_muscles' of " + named + " must be a list");
+    for (const auto& reference : references) {
+      if (!reference.IsScalar())
+        throw SceneError(where(path, reference.Mark()) + ": reference_muscles of " + named + " must be strings");
+      m.reference_muscles.push_back(reference.Scalar());
     }
   }
   return m;
@@ -153,6 +194,31 @@ SceneDescription loadSceneDescription(const std::string& yaml_path) {
       const std::string mesh = requiredString(stand_ins[i], "mesh", yaml_path, what);
       if (!scene.bone_surfaces.emplace(mesh, requiredString(stand_ins[i], "surface", yaml_path, what)).second)
         throw SceneError(where(yaml_path, stand_ins[i].Mark()) + ": mesh '" + mesh + "' is replaced twice");
+    }
+  }
+  if (const YAML::Node reference = root["reference_model"]; reference.IsDefined() && !reference.IsNull()) {
+    if (!reference.IsMap()) throw SceneError(where(yaml_path, reference.Mark()) + ": 'reference_model' must be a map");
+    scene.reference_model.osim_file = requiredString(reference, "osim", yaml_path, "reference_model");
+    if (const YAML::Node scales = reference["body_scales"]; scales.IsDefined() && !scales.IsNull()) {
+      if (!scales.IsMap())
+        throw SceneError(where(yaml_path, scales.Mark()) + ": 'body_scales' must map body names to [x, y, z]");
+      for (const auto& entry : scales) {
+        const YAML::Node xyz = entry.second;
+        const std::string body = entry.first.Scalar();
+        if (!xyz.IsSequence() || xyz.size() != 3)
+          throw SceneError(where(yaml_path, xyz.Mark()) + ": body_scales of '" + body + "' must be [x, y, z]");
+        Eigen::Vector3d scale;
+        for (std::size_t k = 0; k < 3; ++k) {
+          try {
+            scale[static_cast<Eigen::Index>(k)] = xyz[k].as<double>();
+          } catch (const YAML::Exception&) {
+            throw SceneError(where(yaml_path, xyz[k].Mark()) + ": body_scales of '" + body + "' must be numbers");
+          }
+        }
+        if (!(scale.array() > 0).all() || !scale.allFinite())
+          throw SceneError(where(yaml_path, xyz.Mark()) + ": body_scales of '" + body + "' must be positive");
+        scene.reference_model.body_scales[body] = scale;
+      }
     }
   }
   const YAML::Node muscles = root["muscles"];
@@ -231,6 +297,8 @@ std::vector<std::string> linksMissingFrom(const SceneDescription& description, c
   for (const MuscleDescription& m : description.muscles) {
     check(m.origin_bone);
     check(m.insertion_bone);
+    for (const std::vector<SitePoint>* tendon : {&m.origin_path, &m.insertion_path})
+      for (const SitePoint& site : *tendon) check(site.link);
   }
   return missing;
 }
@@ -380,6 +448,20 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     muscle.name = m.name;
     muscle.origin_bone = m.origin_bone;
     muscle.insertion_bone = m.insertion_bone;
+    // Tendon paths: each point from its link's frame into the scene frame at rest; a point must lie on a bone.
+    const auto placed = [&](const std::vector<SitePoint>& sites, const char* key) {
+      std::vector<AttachmentSite> points;
+      for (const SitePoint& site : sites) {
+        const auto rest = scene.rest_link_poses.find(site.link);
+        if (!bone_names.count(site.link) || rest == scene.rest_link_poses.end())
+          throw SceneError(description.path + ": muscle '" + m.name + "': " + key + " names link '" + site.link +
+                           "', which has no <collision> mesh in the URDF, so no bone to attach a tendon to");
+        points.push_back({site.link, rest->second * site.point});
+      }
+      return points;
+    };
+    muscle.origin_path = placed(m.origin_path, "origin_path");
+    muscle.insertion_path = placed(m.insertion_path, "insertion_path");
     // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths start at
     // the scene file's folder.
     std::string surface_path, fibre_path;

@@ -208,6 +208,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   }
   for (std::size_t i = 0; i < static_cast<std::size_t>(n); ++i) neighbour_begin_[i + 1] += neighbour_begin_[i];
   neighbours_.resize(static_cast<std::size_t>(neighbour_begin_.back()));
+  std::vector<std::int32_t> spring_of_entry(neighbours_.size());
   std::vector<std::int32_t> fill(neighbour_begin_.begin(), neighbour_begin_.end() - 1);
   std::vector<double> material;
   material.reserve(springs.size());
@@ -217,7 +218,9 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     const double k = springs.stiffness[e], l0 = springs.rest_length[e];
     const NeighbourSpring packed_to_second{springs.second[s], k, l0};
     const NeighbourSpring packed_to_first{springs.first[s], k, l0};
+    spring_of_entry[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])])] = static_cast<std::int32_t>(s);
     neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])]++)] = packed_to_second;
+    spring_of_entry[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])])] = static_cast<std::int32_t>(s);
     neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])]++)] = packed_to_first;
     material.push_back(k * l0);
     rest_sum += l0;
@@ -255,10 +258,16 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   std::vector<NeighbourSpring> visit_order;
   visit_order.reserve(neighbours_.size());
   slot_spring_begin_.assign(coloured_particles_.size() + 1, 0);
+  std::vector<char> tendon_spring(springs.size(), 0);
+  for (const TendonPath& tendon : system_.tendon_paths) tendon_spring[static_cast<std::size_t>(tendon.spring)] = 1;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::size_t p = static_cast<std::size_t>(coloured_particles_[slot]);
-    visit_order.insert(visit_order.end(), neighbours_.begin() + neighbour_begin_[p],
-                       neighbours_.begin() + neighbour_begin_[p + 1]);
+    for (std::int32_t k = neighbour_begin_[p]; k < neighbour_begin_[p + 1]; ++k) {
+      const std::int32_t spring = spring_of_entry[static_cast<std::size_t>(k)];
+      if (tendon_spring[static_cast<std::size_t>(spring)])
+        tendon_entries_.emplace_back(spring, static_cast<std::int32_t>(visit_order.size()));
+      visit_order.push_back(neighbours_[static_cast<std::size_t>(k)]);
+    }
     slot_spring_begin_[slot + 1] = static_cast<std::int32_t>(visit_order.size());
   }
   neighbours_ = std::move(visit_order);
@@ -292,8 +301,7 @@ void BlockDescentSolver::limitStep(std::int32_t p, const Eigen::Vector3d& start,
   if (length > bound) x = start + (bound / length) * (x - start);
 }
 
-void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end,
-                                          int threads) {
+void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end) {
   // The colour's particles of one muscle minimise, together, their own quadratic models (step a_p = H_p^-1 f_p without
   // the volume) plus k/2 (V + sum g_p . d_p - V_rest)^2, which couples them through one scalar: with b_p = H_p^-1 g_p,
   // d_p = a_p - mu b_p and mu = k (V - V_rest + sum g.a) / (1 + k sum g.b) (Sherman-Morrison). Each particle taking the
@@ -312,7 +320,7 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
     const double k = volume_.stiffness[m];
     colour_a_[m] = k * (volume_now_[m] - volume_.rest_volume_m3[m] + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
   }
-#pragma omp parallel for num_threads(threads) schedule(static)
+  // A few operations per particle: serial, a parallel region per colour would cost more in its barrier.
   for (std::int32_t k = begin; k < end; ++k) {
     const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
@@ -348,6 +356,11 @@ double BlockDescentSolver::volumeEnergy() const {
     energy += 0.5 * volume_.stiffness[m] * excess * excess;
   }
   return energy;
+}
+
+void BlockDescentSolver::restLengthsChanged() {
+  for (const auto& [spring, entry] : tendon_entries_)
+    neighbours_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[spring];
 }
 
 void BlockDescentSolver::updateDragWeights() {
@@ -608,7 +621,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       volume_change_[p] = 0;
       position.col(p) = x;
     }
-    if (volume_.active()) applyVolumeSteps(position, begin, end, threads);
+    if (volume_.active()) applyVolumeSteps(position, begin, end);
   }
   // Sums in particle order, so they do not depend on the thread count either (in locals: the references might alias
   // the arrays as far as the compiler knows).

@@ -187,11 +187,13 @@ void LocalGlobalSolver::buildTerms() {
 
   // Springs between two fixed particles move rigidly with the pose or not at all: they have no free unknown.
   springs_.clear();
+  spring_entry_.assign(system_.springs.size(), -1);
   for (std::size_t s = 0; s < system_.springs.size(); ++s) {
     const std::int32_t a = system_.springs.first[s], b = system_.springs.second[s];
     const std::int32_t fa = free_index_[static_cast<std::size_t>(a)], fb = free_index_[static_cast<std::size_t>(b)];
     if (fa < 0 && fb < 0) continue;
     const auto e = static_cast<Eigen::Index>(s);
+    spring_entry_[s] = static_cast<std::int32_t>(springs_.size());
     springs_.push_back({a, b, fa, fb, system_.springs.stiffness[e], system_.springs.rest_length[e]});
   }
 
@@ -532,6 +534,14 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const Stoppi
     if (solveLimitReached(stopping_settings.limits, elapsed_ms, stats)) break;
   }
   stats.mss_ms += millisecondsSince(mss_start);
+}
+
+void LocalGlobalSolver::restLengthsChanged() {
+  // Rest lengths enter the local projections only, not the prefactored matrix.
+  for (const TendonPath& tendon : system_.tendon_paths) {
+    const std::int32_t entry = spring_entry_[static_cast<std::size_t>(tendon.spring)];
+    if (entry >= 0) springs_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[tendon.spring];
+  }
 }
 
 SolveStats LocalGlobalSolver::solve(ParticleState& state, const StoppingSettings& stopping_settings,

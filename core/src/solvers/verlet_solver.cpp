@@ -107,6 +107,12 @@ std::size_t VerletSolver::solverBytes() const {
          static_cast<std::size_t>(entry_position_.size() + entry_previous_position_.size()) * sizeof(double);
 }
 
+void VerletSolver::restLengthsChanged() {
+  // Packed in spring order (packSprings): the tendon's spring is entry `spring`.
+  for (const TendonPath& tendon : system_.tendon_paths)
+    packed_springs_[static_cast<std::size_t>(tendon.spring)].rest_length = system_.springs.rest_length[tendon.spring];
+}
+
 void VerletSolver::packSprings() {
   // The solver's own compact copy of the springs: 16 bytes each, grouped in runs that share their first particle, to
   // cut the memory traffic of the force loop, which is what bounds it. Stiffness in single precision only scales a

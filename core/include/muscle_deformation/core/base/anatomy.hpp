@@ -17,6 +17,12 @@ struct Bone {
   TriangleMesh surface;  // rest pose, metres, in the scene (fixed) frame
 };
 
+// A point on a bone a tendon runs through: where it attaches (the site) or wraps over the bone (a via point).
+struct AttachmentSite {
+  std::string bone;       // Bone::name (the URDF link)
+  Eigen::Vector3d point;  // rest pose, metres, scene frame
+};
+
 struct Muscle {
   std::string name;               // e.g. "rectus_femoris"
   TriangleMesh surface;           // closed, 2-manifold, rest pose, scene frame
@@ -24,6 +30,11 @@ struct Muscle {
   // The bones (Bone::name) the muscle is attached to: its particles are fixed to these only, and collide with any
   // other bone. Both empty: the muscle is attached to whichever bone its particles are near (synthetic set-ups).
   std::string origin_bone, insertion_bone;
+  // The tendons' paths where the belly ends short of its attachment (the tendon was not segmented): from the origin
+  // site on its bone towards the belly (the last point is the one nearest the belly), and from the belly to the
+  // insertion site (the first point nearest the belly). Empty: a fibre end away from its bone hangs from the bone's
+  // nearest point (ModelSettings::tendons).
+  std::vector<AttachmentSite> origin_path, insertion_path;
 };
 
 // Rigid transform of every bone from its rest placement to the current one (scene frame).

@@ -25,6 +25,18 @@ struct SpringSet {
   std::size_t size() const { return first.size(); }
 };
 
+// A tendon whose path runs on past its anchor over points on bones (via points, the attachment site). The length of
+// that fixed part changes with the pose when the points lie on different bones (the psoas over the pelvic brim to the
+// femur), and the tendon's whole length is what it keeps: its spring's rest length is the whole rest length minus the
+// fixed part's length in the pose (updateTendonRestLengths).
+struct TendonPath {
+  std::int32_t spring = -1;            // the spring from the fibre end to the anchor
+  std::int32_t anchor = -1;            // the anchor particle (fixed to its bone at the path's first point)
+  std::vector<std::int32_t> bones;     // the bone of each path point beyond the anchor, in order to the site
+  Eigen::Matrix3Xd points = Eigen::Matrix3Xd(3, 0);  // those points at rest, scene frame
+  double length_m = 0;                 // the tendon's whole rest length: fibre end to site along the path
+};
+
 struct MassSpringSystem {
   // Rest configuration (scene frame, metres) and per-particle properties.
   Eigen::Matrix3Xd rest_position = Eigen::Matrix3Xd(3, 0);
@@ -46,6 +58,7 @@ struct MassSpringSystem {
   std::vector<std::string> muscle_name;
 
   SpringSet springs;
+  std::vector<TendonPath> tendon_paths;  // tendons whose path goes on past their anchor (ModelSettings::tendons)
 
   Eigen::Index particleCount() const { return rest_position.cols(); }
   int muscleCount() const { return static_cast<int>(muscle_name.size()); }

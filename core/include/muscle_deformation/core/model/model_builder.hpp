@@ -29,6 +29,14 @@ struct ModelSettings {
   // muscles end centimetres from their bones (hamstrings ~10 cm above the tibia, tensor fasciae latae 34 cm), and a
   // point fixed that far from a bone swings with the bone's rotation like the end of a rigid lever.
   bool tendons = true;
+  // A tendon's stiffness: this x spring_material_n / its whole rest length (the belly's springs have
+  // spring_material_n / rest length). Real tendon is orders of magnitude stiffer than passive muscle, so that a joint's
+  // motion stretches the belly, not the tendon; 1 = the belly's material (the seeds' one spring).
+  double tendon_stiffness_ratio = 1.0;
+  // A tendon also joins its anchor to the fibre's next particle inward, so that it keeps its line with the fibre's end:
+  // pulled shorter (a joint closing) it pushes the belly along the fibre rather than letting the end swing round the
+  // anchor. A passive belly hanging from a string would take no shortening at all.
+  bool tendon_keeps_line = false;
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
@@ -52,6 +60,7 @@ struct MuscleBuildSummary {
   int fixed_particles = 0;  // tendon anchors included, fibre ends joined through a tendon not
   int tendons = 0;          // fibre ends joined to their bone through a tendon (ModelSettings::tendons)
   double longest_tendon_m = 0;
+  int tendons_to_sites = 0;  // of `tendons`, those running along the muscle's tendon path to its attachment site
   int springs = 0;          // tendons included
   int dropped_springs = 0;  // joined coincident particles (zero rest length)
   double mean_radius_m = 0; // mean collision sphere radius of the boundary particles

@@ -24,6 +24,14 @@ void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_tr
 // Only the fixed (attached) particles follow their bones; free particles keep the previous result and velocity.
 void moveAttachments(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state);
 
+// Tendons whose path runs on past their anchor (system.tendon_paths): the length of that fixed part in the pose, and
+// the rest length their spring then has (the tendon's whole rest length minus it, at least kMinTendonRestLengthM),
+// written into system.springs.rest_length. True if any changed: the solvers must read them again
+// (SoftBodySolver::restLengthsChanged).
+constexpr double kMinTendonRestLengthM = 1e-4;
+double tendonPathBeyondAnchor(const MassSpringSystem& system, const TendonPath& tendon, const BoneTransforms& transforms);
+bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& transforms);
+
 // State at rest: positions = rest positions, zero velocity.
 ParticleState restState(const MassSpringSystem& system);
 

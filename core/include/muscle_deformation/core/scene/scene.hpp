@@ -27,6 +27,12 @@ UriResolver makeUriResolver(std::map<std::string, std::string> package_roots, st
 // ---------------------------------------------------------------------------------------------------------------
 // Scene YAML
 
+// A point of a tendon's path as the scene YAML gives it: a URDF link and a point in the link's frame (m).
+struct SitePoint {
+  std::string link;
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();
+};
+
 struct MuscleDescription {
   std::string name;
   std::string surface_file;  // as written: relative to the scene file's folder, absolute, package:// or file://
@@ -34,6 +40,17 @@ struct MuscleDescription {
   std::string origin_bone, insertion_bone;  // URDF link names
   std::array<float, 4> colour{0.8f, 0.2f, 0.2f, 1.0f};  // RGBA 0-1
   std::vector<std::string> tags;                         // e.g. thigh13, hip
+  // `origin_path` / `insertion_path` keys: the tendons' paths (Muscle::origin_path), each point in its link's frame.
+  std::vector<SitePoint> origin_path, insertion_path;
+  // `reference_muscles` key: the reference model's musculotendons this muscle is compared with (empty: none).
+  std::vector<std::string> reference_muscles;
+};
+
+// `reference_model` key: the musculoskeletal model the sites and the length reference come from (an OpenSim model) and
+// the per-body scale factors that make it the scene's skeleton.
+struct ReferenceModel {
+  std::string osim_file;  // as written (the forms of MuscleDescription::surface_file); empty: none
+  std::map<std::string, Eigen::Vector3d> body_scales;
 };
 
 struct SceneDescription {
@@ -50,6 +67,7 @@ struct SceneDescription {
   // MuscleDescription::surface_file), in the units and frame of the mesh it stands in for, so that the URDF's scale
   // and origin apply to it as they did to the original.
   std::map<std::string, std::string> bone_surfaces;
+  ReferenceModel reference_model;
 };
 
 // Descriptions that only name the muscles (default colour, no files, no tags): for muscles made in code (the synthetic

@@ -106,6 +106,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   // The muscles' volume term (volume_term.hpp) joins the frame energy: evaluated before every sweep, each particle's
   // step takes its muscle's volume as it stands after the colours before it.
   bool keepsVolume() const override { return true; }
+  void restLengthsChanged() override;
   void setVolumeTerm(VolumeTerm term) override;
   const VolumeTerm& volumeTerm() const { return volume_; }
   // Clamped to [kMinFrameIntervalS, kMaxFrameIntervalS] (a pose stream's gaps, whatever their cause, give the tissue
@@ -203,6 +204,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   std::vector<std::int32_t> neighbour_begin_;  // per particle, into neighbours_ (while building)
   std::vector<NeighbourSpring> neighbours_;      // each free particle's springs, in visiting order
   std::vector<std::int32_t> slot_spring_begin_;  // per visiting slot (index into coloured_particles_), into neighbours_
+  // The entries of neighbours_ of each tendon spring with a path (system.tendon_paths): (spring, entry).
+  std::vector<std::pair<std::int32_t, std::int32_t>> tendon_entries_;
   std::vector<std::int32_t> colour_of_;        // per particle, -1 for fixed ones
   std::vector<std::int32_t> colour_begin_;     // into coloured_particles_
   std::vector<std::int32_t> coloured_particles_;
@@ -234,7 +237,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   // The particle's step cut to its bound (the contact margin plus its starting depth).
   void limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const;
   // The volume term's share of the steps of one colour's particles (those with a volume gradient), then their moves.
-  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end, int threads);
+  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end);
   // The volume term's value and gradient at `position` into volume_now_ / volume_gradient_ (nothing when off).
   void evaluateVolume(const Eigen::Matrix3Xd& position);
   // sum_m k_m / 2 (V_m - V_m,rest)^2 for the volumes in volume_now_.

@@ -94,6 +94,7 @@ class LocalGlobalSolver final : public SoftBodySolver {
   // factorisation is reused across solves. Allocates nothing per iteration. The iteration is implicit and needs no
   // step control; should it still produce a non-finite position, the state is put back as it was on entry and the
   // stats say `diverged`.
+  void restLengthsChanged() override;
   // Any stopping rule but force_residual, which this solver does not measure.
   SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
                    const AfterUpdateHook& after_update = {}) override;
@@ -152,6 +153,7 @@ class LocalGlobalSolver final : public SoftBodySolver {
   std::vector<std::int32_t> free_index_;    // per particle: index among free particles or -1
   std::vector<std::int32_t> free_particle_;  // free index -> particle
   std::vector<Spring> springs_;
+  std::vector<std::int32_t> spring_entry_;  // per spring of the system: its index in springs_ (-1: none)
   std::vector<VolumeTerm> volume_terms_;
   MuscleTetrahedra tetrahedra_;
   Eigen::VectorXd volume_stiffness_;

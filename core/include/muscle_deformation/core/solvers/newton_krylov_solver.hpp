@@ -43,6 +43,7 @@ class NewtonKrylovSolver final : public SoftBodySolver {
   bool solvesContacts() const override { return true; }
   bool dragsTissue() const override { return energy_.dragsTissue(); }
   bool keepsVolume() const override { return true; }
+  void restLengthsChanged() override { energy_.restLengthsChanged(); }
   void setVolumeTerm(VolumeTerm term) override { energy_.setVolumeTerm(std::move(term)); }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
   void setFrameInterval(double seconds) override { energy_.setFrameInterval(seconds); }

@@ -54,6 +54,9 @@ class SoftBodySolver {
   // Solvers that minimise a frame energy take the muscles' volume term into it (volume_term.hpp); the others ignore it
   // and say so here.
   virtual bool keepsVolume() const { return false; }
+  // The rest lengths of the system's tendon springs with a path (MassSpringSystem::tendon_paths) changed with the
+  // pose: the solver reads them again before its next solve.
+  virtual void restLengthsChanged() = 0;
   virtual void setVolumeTerm(VolumeTerm) {}
 };
 

@@ -61,6 +61,8 @@ class VerletSolver final : public SoftBodySolver {
   SolveStats solve(ParticleState& state, const StoppingSettings& stopping,
                    const AfterUpdateHook& after_update = {}) override;
 
+  void restLengthsChanged() override;
+
   // One MSS update (forces, time step, integration) without collision, for benchmarks. Returns the dt used.
   double step(ParticleState& state);
 

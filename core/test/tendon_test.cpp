@@ -1,0 +1,156 @@
+// Specifications of tendons: a fibre end away from its bone hangs from the muscle's attachment site through its via
+// points by a tendon much stiffer than the belly, so that the joint's motion reaches the belly.
+#include "muscle_deformation/core/model/model_builder.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
+#include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/support/bundled_scene.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace muscle_deformation;
+
+namespace {
+
+constexpr double kBelly = 0.1, kTendon = 0.04, kRadius = 0.012;
+
+// A cylindrical belly along z from 0 to kBelly on a bottom bone, its insertion site kTendon above its end on a top bone:
+// the tendon was not segmented.
+struct HangingScene {
+  std::vector<Bone> bones;
+  std::vector<Muscle> muscles;
+};
+
+HangingScene hangingMuscle(bool with_site = true) {
+  HangingScene scene;
+  scene.bones.push_back({0, "bottom", makeBoxMesh({-0.03, -0.03, -0.02}, {0.03, 0.03, -0.0005})});
+  scene.bones.push_back({1, "top", makeBoxMesh({-0.03, -0.03, kBelly + kTendon}, {0.03, 0.03, kBelly + kTendon + 0.02})});
+  Muscle muscle;
+  muscle.name = "belly";
+  muscle.surface = makeCylinderMesh({0, 0, 0}, {0, 0, kBelly}, kRadius, 24, 16);
+  muscle.origin_bone = "bottom";
+  muscle.insertion_bone = "top";
+  for (int i = -2; i <= 2; ++i)
+    for (int j = -2; j <= 2; ++j) {
+      const double x = 0.004 * i, y = 0.004 * j;
+      if (x * x + y * y > 0.85 * kRadius * 0.85 * kRadius) continue;
+      Polyline fibre(3, 11);
+      for (int k = 0; k <= 10; ++k) fibre.col(k) = Eigen::Vector3d(x, y, kBelly * k / 10.0);
+      muscle.fibres.push_back(fibre);
+    }
+  if (with_site) muscle.insertion_path = {{"top", Eigen::Vector3d(0, 0, kBelly + kTendon)}};
+  scene.muscles.push_back(muscle);
+  return scene;
+}
+
+PipelineSettings settings(double tendon_ratio) {
+  PipelineSettings s;
+  s.simulation.solver_kind = SolverKind::block_descent;
+  s.simulation.collisions = false;
+  s.simulation.model.particles_per_fibre = 10;
+  s.simulation.model.tendon_stiffness_ratio = tendon_ratio;
+  s.skin_surfaces = false;
+  s.measure_fidelity = false;
+  s.threads = 1;
+  return s;
+}
+
+double meanBellyLength(const DeformationPipeline& pipeline) {
+  const std::vector<Eigen::Matrix3Xd> fibres = fibrePolylines(pipeline.system(), pipeline.state().position);
+  double sum = 0;
+  for (const Eigen::Matrix3Xd& fibre : fibres) sum += polylineLength(fibre);
+  return sum / static_cast<double>(fibres.size());
+}
+
+// The top bone moved up so that the distance between the bones grows by `share`.
+BoneTransforms apart(double share) {
+  Eigen::Isometry3d top = Eigen::Isometry3d::Identity();
+  top.translation().z() = share * (kBelly + kTendon);
+  return {Eigen::Isometry3d::Identity(), top};
+}
+
+const FrameStopping kConverged = FrameStopping::of(StoppingSettings::atResidual(1e-7, 50000));
+
+}  // namespace
+
+TEST(Tendon, AFibreEndAwayFromItsBoneHangsFromTheInsertionSiteNotTheBonesNearestPoint) {
+  const HangingScene scene = hangingMuscle();
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{}, &report);
+  ASSERT_EQ(report.muscles.size(), 1u);
+  EXPECT_EQ(report.muscles[0].tendons, report.muscles[0].fibres);
+  EXPECT_EQ(report.muscles[0].tendons_to_sites, report.muscles[0].fibres);
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
+    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor)
+      EXPECT_LT((system.rest_position.col(i) - Eigen::Vector3d(0, 0, kBelly + kTendon)).norm(), 1e-12);
+}
+
+TEST(Tendon, AStraightMuscleBetweenTwoBonesThatMoveTenPercentApartStretchesItsBellyAtLeastNinePercent) {
+  const HangingScene scene = hangingMuscle();
+  const auto stretch = [&](double tendon_ratio) {
+    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, settings(tendon_ratio));
+    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+    const double rest = meanBellyLength(pipeline);
+    pipeline.solve(apart(0.10), StartMode::warm, kConverged, false, false);
+    return meanBellyLength(pipeline) / rest - 1.0;
+  };
+  const double soft = stretch(1.0), stiff = stretch(100.0);
+  std::printf("bones 10 %% apart: belly stretched %.1f %% with the belly's material in the tendon, %.1f %% with a tendon "
+              "100 x stiffer\n", 100 * soft, 100 * stiff);
+  EXPECT_GE(stiff, 0.09);
+  EXPECT_LT(soft, stiff) << "the soft tendon takes part of the stretch";
+}
+
+TEST(Tendon, ATendonOverAViaPointOnAnotherBoneFollowsThatBonesMotionWithItsWholeLength) {
+  // The site on the bottom bone, reached over a via point on the top bone: moving the top bone along the via-site line
+  // changes the fixed part of the path, and the tendon's spring takes up exactly that change.
+  HangingScene scene = hangingMuscle(false);
+  scene.muscles[0].insertion_path = {{"top", Eigen::Vector3d(0, 0, kBelly + kTendon)},
+                                     {"bottom", Eigen::Vector3d(0.05, 0, kBelly + kTendon)}};
+  MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, ModelSettings{});
+  ASSERT_FALSE(system.tendon_paths.empty());
+  const TendonPath& tendon = system.tendon_paths.front();
+  const double rest = system.springs.rest_length[tendon.spring];
+  EXPECT_NEAR(tendon.length_m - rest, 0.05, 1e-12) << "the whole length is the spring's plus the via-site segment";
+  Eigen::Isometry3d top = Eigen::Isometry3d::Identity();
+  top.translation().x() = 0.01;  // the via point moves 1 cm towards the site
+  EXPECT_TRUE(updateTendonRestLengths(system, {Eigen::Isometry3d::Identity(), top}));
+  EXPECT_NEAR(system.springs.rest_length[tendon.spring], rest + 0.01, 1e-12);
+  EXPECT_FALSE(updateTendonRestLengths(system, {Eigen::Isometry3d::Identity(), top})) << "nothing changed";
+}
+
+TEST(Tendon, TheBundledScenesTendonPathsAreInTheSceneFrameOnTheirLinksBones) {
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {"rectus_femoris"});
+  ASSERT_EQ(bundled.scene.muscles.size(), 1u);
+  const Muscle& rectus = bundled.scene.muscles[0];
+  const MuscleDescription& description = bundled.scene.muscle_descriptions[0];
+  ASSERT_EQ(rectus.insertion_path.size(), description.insertion_path.size());
+  ASSERT_FALSE(rectus.insertion_path.empty());
+  for (std::size_t k = 0; k < rectus.insertion_path.size(); ++k) {
+    const SitePoint& written = description.insertion_path[k];
+    EXPECT_EQ(rectus.insertion_path[k].bone, written.link);
+    const Eigen::Vector3d expected = bundled.scene.rest_link_poses.at(written.link) * written.point;
+    EXPECT_LT((rectus.insertion_path[k].point - expected).norm(), 1e-12);
+  }
+  EXPECT_EQ(rectus.insertion_path.front().bone, "patella_r");
+  EXPECT_FALSE(description.reference_muscles.empty());
+}
+
+TEST(Tendon, ASiteOnALinkWithoutABoneIsRefusedNamingTheMuscleAndTheLink) {
+  const std::string package = MD_PACKAGE_DIR;
+  SceneDescription description = loadSceneDescription(package + "/config/scenes/right_hip_thigh.yaml");
+  for (MuscleDescription& m : description.muscles)
+    if (m.name == "rectus_femoris") m.insertion_path.push_back({"knee_tx_r_link", Eigen::Vector3d::Zero()});
+  const Skeleton skeleton = Skeleton::fromUrdfFile(package + "/urdf/right_hip_thigh.urdf");
+  try {
+    loadScene(description, skeleton, makeUriResolver({{"muscle_deformation", package}}, package), {"rectus_femoris"});
+    FAIL() << "a site on a link without a bone was accepted";
+  } catch (const SceneError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("rectus_femoris"), std::string::npos) << message;
+    EXPECT_NE(message.find("knee_tx_r_link"), std::string::npos) << message;
+  }
+}
