@@ -318,6 +318,57 @@ def fidelity_section(rows):
     lines += [""]
     return lines
 
+LENGTH_JOINTS = ("hip_flexion_r", "hip_adduction_r", "hip_rotation_r", "knee_angle_r")
+
+
+def length_target_misses(r, prefix=""):
+    """What keeps a muscle's belly length from issue 26's target, as short phrases (empty: it meets it)."""
+    misses = []
+    if r[prefix + "r"] < 0.9:
+        misses.append(f"r {r[prefix + 'r']:.2f}")
+    reference, product = r["range_mm_reference"], r[prefix + "range_mm_product"]
+    if reference >= 10.0:
+        if not 0.7 <= product / reference <= 1.3:
+            misses.append(f"excursion x{product / reference:.2f}")
+    elif abs(product - reference) > 3.0:
+        misses.append(f"excursion {product - reference:+.1f} mm")
+    for joint in LENGTH_JOINTS:
+        expected = r["mm_per_rad_reference_" + joint]
+        if abs(expected) > 5.0 and expected * r[prefix + "mm_per_rad_product_" + joint] <= 0:
+            misses.append(f"{joint} sign")
+    return misses
+
+
+def lengths_section(rows):
+    compared = [r for r in rows if "r" in r]
+    without = [r["muscle"] for r in rows if "r" not in r]
+    meeting = [r for r in compared if not length_target_misses(r)]
+    meeting_converged = [r for r in compared if not length_target_misses(r, "converged_")]
+    lines = ["## Muscle lengths against gait2392", "",
+             "Each bundled muscle's mean belly fibre length over the 1-cycle gait (what `~fibres` shows) against the "
+             "musculotendon length of its gait2392 counterpart(s), computed by our reader from the .osim scaled to the "
+             "skeleton at the trial's joint angles. *stream*: the node's defaults frame by frame; *converged*: every "
+             "frame refined until it meets the residual criterion (so solver lag and the model can be told apart). "
+             "*with tendon*: belly plus each tendon along its path to the site. mm/rad: least-squares slope against "
+             "the four right-leg joint angles. Target (issue 26): r >= 0.9, excursion 0.7-1.3 x the reference's "
+             "(within 3 mm where it moves < 10 mm), each joint's slope with gait2392's sign where that exceeds 5 mm/rad. "
+             f"**{len(meeting)} of {len(compared)}** muscles meet it streamed, {len(meeting_converged)} converged. "
+             "Raw numbers: `out/bench/lengths.json`.", "",
+             "| muscle | gait2392 | r stream / converged | r with tendon | excursion mm product / reference (x) | "
+             "knee mm/rad product / reference | hip flexion mm/rad product / reference | misses (stream) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in compared:
+        misses = length_target_misses(r)
+        lines.append(f"| {r['muscle']} | {r['reference']} | {r['r']:.2f} / {r['converged_r']:.2f} | "
+                     f"{r['with_tendon_r']:.2f} | {r['range_mm_product']:.1f} / {r['range_mm_reference']:.1f} "
+                     f"(x{r['range_ratio']:.2f}) | {r['mm_per_rad_product_knee_angle_r']:.0f} / "
+                     f"{r['mm_per_rad_reference_knee_angle_r']:.0f} | {r['mm_per_rad_product_hip_flexion_r']:.0f} / "
+                     f"{r['mm_per_rad_reference_hip_flexion_r']:.0f} | {', '.join(misses) if misses else 'meets'} |")
+    if without:
+        lines += ["", "No counterpart in gait2392: " + ", ".join(without) + "."]
+    lines += [""]
+    return lines
+
 
 def main():
     out_dir = pathlib.Path(sys.argv[1])
@@ -362,13 +413,16 @@ def main():
     fidelity = load(out_dir, "fidelity.json")
     if fidelity:
         lines += fidelity_section(fidelity)
+    lengths = load(out_dir, "lengths.json")
+    if lengths:
+        lines += lengths_section(lengths)
     skinning = load(out_dir, "skinning.json")
     if skinning:
         lines += skinning_section(skinning)
     extra = sorted(p.name for p in out_dir.glob("*.json")
                    if p.name not in {"mss.json", "iteration.json", "skinning.json", "local_global.json", "paper_table.json",
                                      "speed_vs_error.json", "stability.json", "economy.json", "realtime.json",
-                                     "bone_proxy.json", "fidelity.json"})
+                                     "bone_proxy.json", "fidelity.json", "lengths.json"})
     if extra:
         lines += ["## Other results", "", "Raw numbers in `out/bench/`: " + ", ".join(extra) + ".", ""]
     target.parent.mkdir(parents=True, exist_ok=True)
