@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <vector>
 
 using namespace muscle_deformation;
 
@@ -165,6 +166,36 @@ TEST(StreamSession, AHeldPoseRefinesAnUnfinishedFrameUntilItConvergesAndThenIsSk
   const StreamStep moved = session->offer((held + 1) * kFrameS, thighAt(*session, 0.31, 0.2), kParticlesOnly);
   EXPECT_EQ(moved.outcome, StreamOutcome::solved);
   EXPECT_FALSE(moved.cold) << moved.reason;
+}
+
+TEST(StreamSession, AFrameWhoseResidualStopsFallingIsLeftUnfinishedAndTheNextPoseRefinesAgain) {
+  // A tolerance no frame can meet: the residual falls to round-off and then no further.
+  StreamSessionSettings settings = oneSweep();
+  settings.stopping.sweeps.residual_tolerance = 1e-300;
+  const auto session = sessionOf(settings);
+  const BoneTransforms pose = thighAt(*session, 0.3, 0.2);
+  ASSERT_EQ(session->offer(0.0, pose, kParticlesOnly).outcome, StreamOutcome::solved);
+  std::vector<double> residuals;
+  int held = 1;
+  for (; held <= 5000 && session->wantsRefinement(); ++held) {
+    const StreamStep step = session->offer(held * kFrameS, pose, kParticlesOnly);
+    ASSERT_EQ(step.outcome, StreamOutcome::refined) << "held pose " << held << ": " << step.reason;
+    ASSERT_FALSE(step.frame->stats.solver.converged);
+    residuals.push_back(step.frame->stats.solver.residual);
+  }
+  ASSERT_FALSE(session->wantsRefinement()) << "still refining after 5000 held poses: residual " << residuals.back();
+  ASSERT_GE(residuals.size(), 4u);
+  // The last three refinements gained less than 1 % each, and the residual had fallen a long way before them.
+  for (std::size_t k = residuals.size() - 3; k < residuals.size(); ++k)
+    EXPECT_GT(residuals[k], 0.99 * residuals[k - 1]) << "refinement " << k;
+  EXPECT_LT(residuals.back(), 1e-6 * residuals.front());
+  std::printf("refinement stopped after %zu refinements at residual %.3g (first %.3g)\n", residuals.size(),
+              residuals.back(), residuals.front());
+  // Held poses are now skipped; a new pose is solved and its frame refined again.
+  EXPECT_EQ(session->offer(held * kFrameS, pose, kParticlesOnly).outcome, StreamOutcome::unchanged);
+  EXPECT_EQ(session->offer((held + 1) * kFrameS, thighAt(*session, 0.31, 0.2), kParticlesOnly).outcome,
+            StreamOutcome::solved);
+  EXPECT_TRUE(session->wantsRefinement());
 }
 
 TEST(StreamSession, RefinementIsOffWhenTheSettingsSaySo) {

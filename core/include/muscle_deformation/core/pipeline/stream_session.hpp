@@ -32,7 +32,8 @@ struct StreamSessionSettings {
   PoseStreamSettings poses;
   FrameStopping stopping;  // how a frame's solve stops (a cold start: stopping.cold_start_iterations)
   // A pose no bone moved in, while the last frame has not met its residual criterion (solvers that measure one), is
-  // spent on more sweeps of that frame, within the frame's stopping, until it converges (refine()).
+  // spent on more sweeps of that frame, within the frame's stopping, until it converges or its residual stops falling
+  // (three refinements in a row gaining less than 1 % of it; refine()).
   bool refine_unfinished_frames = true;
 };
 std::string validate(const StreamSessionSettings& settings);
@@ -113,6 +114,12 @@ class StreamSession {
   std::unique_ptr<PoseStream> poses_;
   StreamCounters counters_;
   bool last_frame_unfinished_ = false;  // the last solved frame measured a residual above its tolerance
+  double last_residual_ = -1;           // that frame's residual (-1: not measured)
+  // Refinements of the current frame in a row that lowered its residual by less than kMinRefinementGain of it; after
+  // kStalledRefinementsToStop of them the frame is left unfinished and the session stops refining it.
+  int stalled_refinements_ = 0;
+  static constexpr double kMinRefinementGain = 0.01;
+  static constexpr int kStalledRefinementsToStop = 3;
   double last_stamp_s_ = 0;             // of the last pose solved
   bool recovering_ = false;  // a frame failed or diverged since the last good one: the next cold start is a restart
 };
