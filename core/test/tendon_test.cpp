@@ -83,9 +83,11 @@ TEST(Tendon, AFibreEndAwayFromItsBoneHangsFromTheInsertionSiteNotTheBonesNearest
   ASSERT_EQ(report.muscles.size(), 1u);
   EXPECT_EQ(report.muscles[0].tendons, report.muscles[0].fibres);
   EXPECT_EQ(report.muscles[0].tendons_to_sites, report.muscles[0].fibres);
-  for (Eigen::Index i = 0; i < system.particleCount(); ++i)
-    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor)
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) {
       EXPECT_LT((system.rest_position.col(i) - Eigen::Vector3d(0, 0, kBelly + kTendon)).norm(), 1e-12);
+    }
+  }
 }
 
 TEST(Tendon, AStraightMuscleBetweenTwoBonesThatMoveTenPercentApartStretchesItsBellyAtLeastNinePercent) {
@@ -102,6 +104,35 @@ TEST(Tendon, AStraightMuscleBetweenTwoBonesThatMoveTenPercentApartStretchesItsBe
               "100 x stiffer\n", 100 * soft, 100 * stiff);
   EXPECT_GE(stiff, 0.09);
   EXPECT_LT(soft, stiff) << "the soft tendon takes part of the stretch";
+}
+
+TEST(Tendon, ABellyUnderPassiveTensionShortensWithItsPathWhereOneAtItsRestLengthGoesSlack) {
+  const HangingScene scene = hangingMuscle();
+  const auto shortening = [&](double prestretch) {
+    PipelineSettings s = settings(100.0);
+    s.simulation.model.fibre_prestretch = prestretch;
+    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, s);
+    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+    const double at_rest_pose = meanBellyLength(pipeline);
+    pipeline.solve(apart(-0.10), StartMode::warm, kConverged, false, false);  // the bones 10 % closer
+    return 1.0 - meanBellyLength(pipeline) / at_rest_pose;
+  };
+  const double slack = shortening(0.0), tense = shortening(0.2);
+  std::printf("bones 10 %% closer: belly shortened %.1f %% at its rest length, %.1f %% pre-stretched by 20 %%\n",
+              100 * slack, 100 * tense);
+  // The whole 14 cm path shortens by 14 mm; the stiff tendon passes it to the 10 cm belly when the belly is in tension.
+  EXPECT_GE(tense, 0.09);
+  EXPECT_LT(slack, 0.5 * tense);
+}
+
+TEST(Tendon, APrestretchOutsideZeroToAHalfIsRefused) {
+  ModelSettings s;
+  s.fibre_prestretch = 0.6;
+  EXPECT_NE(validate(s).find("fibre_prestretch"), std::string::npos);
+  s.fibre_prestretch = -0.1;
+  EXPECT_NE(validate(s).find("fibre_prestretch"), std::string::npos);
+  s.fibre_prestretch = 0.2;
+  EXPECT_TRUE(validate(s).empty());
 }
 
 TEST(Tendon, ATendonOverAViaPointOnAnotherBoneFollowsThatBonesMotionWithItsWholeLength) {

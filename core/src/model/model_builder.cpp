@@ -26,6 +26,8 @@ std::string validate(const ModelSettings& s) {
     return "spring_material_n must be a finite value > 0";
   if (!(s.density_kg_per_m3 > 0) || !std::isfinite(s.density_kg_per_m3))
     return "density_kg_per_m3 must be a finite value > 0";
+  if (!(s.fibre_prestretch >= 0 && s.fibre_prestretch <= 0.5))
+    return "fibre_prestretch must be in [0, 0.5]";
   if (!(s.tendon_stiffness_ratio > 0) || !std::isfinite(s.tendon_stiffness_ratio))
     return "tendon_stiffness_ratio must be a finite value > 0";
   if (!(s.boundary_fibre_fraction >= 0 && s.boundary_fibre_fraction <= 1))
@@ -292,6 +294,35 @@ struct PendingTendon {
   // point nearest the belly to the site; empty: the bone's nearest vertex.
   std::vector<std::pair<int, Eigen::Vector3d>> path;
 };
+
+// The belly's springs get a rest length shorter by `prestretch` x the square of their alignment with the fibres (the
+// local direction of the fibres at their two particles): at its segmented length the belly is under passive tension
+// along its fibres, as muscle in the body is, so that when a joint lets its tendon go it shortens instead of going
+// slack. Stiffness stays that of the segmented length. Tendons and springs of tendon anchors are left as they are.
+void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
+  const Eigen::Index n = system.particleCount();
+  const auto on_fibre = [&](Eigen::Index i) { return system.fibre_of[static_cast<std::size_t>(i)] != kTendonAnchor; };
+  const auto same_fibre = [&](Eigen::Index i, Eigen::Index j) {
+    return j >= 0 && j < n && system.fibre_of[static_cast<std::size_t>(i)] == system.fibre_of[static_cast<std::size_t>(j)] &&
+           system.muscle_of[static_cast<std::size_t>(i)] == system.muscle_of[static_cast<std::size_t>(j)];
+  };
+  Eigen::Matrix3Xd direction = Eigen::Matrix3Xd::Zero(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (!on_fibre(i)) continue;
+    const Eigen::Index next = same_fibre(i, i + 1) ? i + 1 : i, previous = same_fibre(i, i - 1) ? i - 1 : i;
+    const Eigen::Vector3d along = system.rest_position.col(next) - system.rest_position.col(previous);
+    if (along.norm() > 0) direction.col(i) = along.normalized();
+  }
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
+    if (!on_fibre(a) || !on_fibre(b)) continue;
+    Eigen::Vector3d fibre = direction.col(a) + (direction.col(a).dot(direction.col(b)) < 0 ? -1.0 : 1.0) * direction.col(b);
+    const Eigen::Vector3d spring = system.rest_position.col(b) - system.rest_position.col(a);
+    if (!(fibre.norm() > 0) || !(spring.norm() > 0)) continue;
+    const double alignment = fibre.normalized().dot(spring.normalized());
+    system.springs.rest_length[static_cast<Eigen::Index>(s)] *= 1.0 - prestretch * alignment * alignment;
+  }
+}
 
 // Inserts each tendon's anchor, a particle fixed to the bone at the bone vertex nearest the fibre end, after its
 // muscle's particles (muscle ranges stay contiguous), renumbers `spring_pairs` and adds one spring per tendon.
@@ -681,6 +712,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
   for (const auto& [spring, stiffness] : tendon_stiffness) system.springs.stiffness[spring] = stiffness;
+  if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, settings.fibre_prestretch);
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
   for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;

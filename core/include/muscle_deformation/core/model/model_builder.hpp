@@ -37,6 +37,10 @@ struct ModelSettings {
   // pulled shorter (a joint closing) it pushes the belly along the fibre rather than letting the end swing round the
   // anchor. A passive belly hanging from a string would take no shortening at all.
   bool tendon_keeps_line = false;
+  // The belly's passive tension at its segmented length: its springs rest shorter by this share along the fibres
+  // (0 = the segmented length is the rest length, the seeds' model). A belly at rest length goes slack when a joint
+  // shortens its path; one under tension shortens with it.
+  double fibre_prestretch = 0.0;
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the
