@@ -77,6 +77,7 @@ StreamStep StreamSession::solveFrame(double stamp_s, const BoneTransforms& trans
     if (step.restarted) ++counters_.resets;
     stalled_refinements_ = 0;
     count(frame);
+    best_residual_ = frame.stats.solver.residual;
     last_stamp_s_ = stamp_s;
     if (frame.stats.finite && !frame.stats.solver.diverged) {
       poses_->accept(stamp_s, transforms);
@@ -104,7 +105,7 @@ void StreamSession::count(const FrameResult& frame) {
   // without one (Verlet, local/global) leaves nothing to judge it by.
   last_frame_unfinished_ = settings_.refine_unfinished_frames && frame.stats.finite && !frame.stats.solver.diverged &&
                            frame.stats.solver.residual >= 0 && !frame.stats.solver.converged;
-  last_residual_ = frame.stats.solver.residual;
+
 }
 
 bool StreamSession::wantsRefinement() const { return last_frame_unfinished_ && poses_->hasPrevious(); }
@@ -119,17 +120,20 @@ StreamStep StreamSession::refine(const FrameWants& wants) {
   }
   step.reason = "no bone moved; the last frame had not met its residual criterion";
   try {
-    const double residual_before = last_residual_;
     const FrameResult& frame = pipeline_->refine(settings_.stopping, wants.surfaces, wants.metrics);
     step.outcome = StreamOutcome::refined;
     step.frame = &frame;
     ++counters_.refined;
     count(frame);
     // A frame whose residual has stopped falling (contacts and the tissue drag can hold it just above the tolerance)
-    // is left as it is: refining it on would keep a core busy for good while the skeleton holds still.
-    if (frame.stats.solver.residual > (1.0 - kMinRefinementGain) * residual_before) ++stalled_refinements_;
-    else stalled_refinements_ = 0;
-    if (stalled_refinements_ >= kStalledRefinementsToStop) last_frame_unfinished_ = false;
+    // is left as it is: refining it on would keep a core busy for good while the skeleton holds still. Falling slowly
+    // is not stopping: the gain is counted against the lowest residual of the frame so far.
+    if (frame.stats.solver.residual < (1.0 - kMinRefinementGain) * best_residual_) {
+      best_residual_ = frame.stats.solver.residual;
+      stalled_refinements_ = 0;
+    } else if (++stalled_refinements_ >= kStalledRefinementsToStop) {
+      last_frame_unfinished_ = false;
+    }
     if (!frame.stats.finite || frame.stats.solver.diverged) {
       poses_->reset();
       recovering_ = true;

@@ -33,7 +33,7 @@ struct StreamSessionSettings {
   FrameStopping stopping;  // how a frame's solve stops (a cold start: stopping.cold_start_iterations)
   // A pose no bone moved in, while the last frame has not met its residual criterion (solvers that measure one), is
   // spent on more sweeps of that frame, within the frame's stopping, until it converges or its residual stops falling
-  // (three refinements in a row gaining less than 1 % of it; refine()).
+  // (ten refinements without one that lowers the frame's lowest residual by 1 %; refine()).
   bool refine_unfinished_frames = true;
 };
 std::string validate(const StreamSessionSettings& settings);
@@ -114,12 +114,12 @@ class StreamSession {
   std::unique_ptr<PoseStream> poses_;
   StreamCounters counters_;
   bool last_frame_unfinished_ = false;  // the last solved frame measured a residual above its tolerance
-  double last_residual_ = -1;           // that frame's residual (-1: not measured)
-  // Refinements of the current frame in a row that lowered its residual by less than kMinRefinementGain of it; after
+  double best_residual_ = -1;           // the lowest residual of the current frame so far (-1: not measured)
+  // Refinements of the current frame since one lowered best_residual_ by at least kMinRefinementGain of it; after
   // kStalledRefinementsToStop of them the frame is left unfinished and the session stops refining it.
   int stalled_refinements_ = 0;
   static constexpr double kMinRefinementGain = 0.01;
-  static constexpr int kStalledRefinementsToStop = 3;
+  static constexpr int kStalledRefinementsToStop = 10;
   double last_stamp_s_ = 0;             // of the last pose solved
   bool recovering_ = false;  // a frame failed or diverged since the last good one: the next cold start is a restart
 };
