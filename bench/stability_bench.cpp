@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <functional>
 #include <memory>
@@ -167,6 +168,7 @@ class Stream {
     return bench::frameOf(step);
   }
   bool lastCold() const { return last_cold_; }
+  bool wantsRefinement() const { return session_.wantsRefinement(); }
   const DeformationPipeline& pipeline() const { return session_.pipeline(); }
   const StreamCounters& counters() const { return session_.counters(); }
 
@@ -215,6 +217,100 @@ void reportStream(const Report& report, const std::string& name, const Stream& s
   if (c.unchanged > 0 || c.refined > 0 || c.resets > 0 || c.failed > 0)
     std::printf("[%6.1f s] %s: of %u poses the stream left %u unchanged, refined %u, restarted %u times\n",
                 report.elapsedSeconds(), name.c_str(), c.offered, c.unchanged, c.refined, c.resets);
+}
+
+// A motion streamed as the node streams it (poses 1/60 s apart), then held still: per frame the spring strain (99th
+// percentile and max), the particles' depth in bone and the model's own volume (tetrahedra over each muscle's
+// particles; no surface, so no projection), and how many held poses it takes until the stream stops refining (the
+// residual criterion met, or the residual no longer falling).
+struct MotionFigures {
+  std::vector<double> strain_p99;  // per solved frame of the motion
+  double max_strain = 0, volume_error_max_pct = 0, residual_last = -1;
+  int held_until_settled = -1;  // -1: still refining when the hold ended
+  bool settled_converged = false;
+  std::uint32_t restarts = 0;
+};
+
+MotionFigures motionCase(Report& report, bench::JsonRecords& records, const BundledScene& bundled, const Setup& setup,
+                         const std::string& name, const std::string& description, const std::vector<Pose>& motion,
+                         int held_poses) {
+  Stream stream(bundled.scene, setup);
+  const DeformationPipeline& simulation = stream.pipeline();
+  const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
+  Outcome outcome;
+  MotionFigures figures;
+  const auto take = [&](const FrameResult* frame) {
+    if (!frame) return;
+    accumulate(outcome, simulation, frame->stats);
+    figures.max_strain = std::max(figures.max_strain, frame->stats.solver.max_strain);
+    figures.volume_error_max_pct =
+        std::max(figures.volume_error_max_pct, maxVolumeErrorPct(tetrahedra, simulation.state().position));
+    figures.residual_last = frame->stats.solver.residual;
+    figures.settled_converged = frame->stats.solver.converged;
+  };
+  for (std::size_t k = 0; k < motion.size(); ++k) {
+    const FrameResult* frame = stream.offer(motion[k]);
+    take(frame);
+    if (frame && k > 0) figures.strain_p99.push_back(frame->stats.solver.strain_p99);
+  }
+  // The motion stops: the last pose held; each held pose refines an unfinished frame.
+  for (int held = 1; held <= held_poses; ++held) {
+    take(stream.offer(motion.back()));
+    if (!stream.wantsRefinement()) {
+      figures.held_until_settled = held;
+      break;
+    }
+  }
+  figures.restarts = stream.counters().resets;
+  reportStream(report, name, stream);
+  std::vector<double> sorted = figures.strain_p99;
+  std::sort(sorted.begin(), sorted.end());
+  const double median_p99 = sorted.empty() ? std::nan("") : sorted[sorted.size() / 2];
+  const double max_p99 = sorted.empty() ? std::nan("") : sorted.back();
+  records.begin();
+  records.add("case", name);
+  records.add("description", description);
+  records.add("motion_frames", static_cast<double>(motion.size()));
+  records.add("particles", static_cast<double>(simulation.system().particleCount()));
+  records.add("finite", outcome.finite ? 1.0 : 0.0);
+  records.add("recoveries", outcome.recoveries);
+  records.add("restarts", static_cast<double>(figures.restarts));
+  records.add("iterations", outcome.iterations);
+  records.add("wall_ms", outcome.wall_ms);
+  records.add("strain_p99_median", median_p99);
+  records.add("strain_p99_max", max_p99);
+  records.add("max_strain", figures.max_strain);
+  records.add("max_particle_inside_bone_mm", outcome.max_particle_depth_m * 1e3);
+  records.add("deepest_particle", outcome.deepest_particle);
+  records.add("particle_volume_error_max_pct", figures.volume_error_max_pct);
+  if (figures.held_until_settled >= 0) records.add("held_poses_until_settled", figures.held_until_settled);
+  records.add("settled_converged", figures.settled_converged ? 1.0 : 0.0);
+  if (figures.residual_last >= 0) records.add("residual_last", figures.residual_last);
+  records.end();
+  std::printf("[%6.1f s] %-22s %s, restarts %u, strain p99 median %.3f max %.3f, max strain %.1f, particles in bone "
+              "%.2f mm (%s), particle-volume error max %.2f %%, settled after %d held poses (%s, residual %.3g)\n",
+              report.elapsedSeconds(), name.c_str(), outcome.finite ? "finite" : "NOT FINITE", figures.restarts,
+              median_p99, max_p99, figures.max_strain, outcome.max_particle_depth_m * 1e3,
+              outcome.deepest_particle.empty() ? "none" : outcome.deepest_particle.c_str(),
+              figures.volume_error_max_pct, figures.held_until_settled,
+              figures.held_until_settled < 0 ? "still refining when the hold ended"
+              : figures.settled_converged   ? "converged"
+                                            : "residual no longer falling",
+              figures.residual_last);
+  std::fflush(stdout);
+  return figures;
+}
+
+// Joint values eased from `from` to `to` over `frames` frames (smoothstep), the first frame at `from`.
+std::vector<Pose> ramp(const BundledScene& bundled, const JointValues& from, const JointValues& to, int frames) {
+  std::vector<Pose> poses;
+  for (int k = 0; k <= frames; ++k) {
+    const double t = static_cast<double>(k) / frames, eased = t * t * (3 - 2 * t);
+    JointValues joints;
+    for (const auto& [joint, start] : from) joints[joint] = start + eased * (to.at(joint) - start);
+    poses.push_back(poseFor(bundled, joints));
+  }
+  return poses;
 }
 
 }  // namespace
@@ -347,6 +443,41 @@ int main(int argc, char** argv) {
                 report.elapsedSeconds(), end_rms_mm, peak_rms_mm, outcome.max_penetration_bone_m * 1e3,
                 outcome.max_particle_depth_m * 1e3,
                 outcome.recoveries, outcome.finite ? "finite" : "NOT FINITE");
+  }
+
+  // Motions beyond the gait (issue 29), each then held still for up to 2 s. The gait at its own speed is the yardstick.
+  {
+    const int hold = options.quick ? 30 : 120;
+    std::vector<Pose> gait;
+    for (std::size_t f = 0; f < thigh.gait.frames.size(); ++f) gait.push_back(gaitPose(thigh, f));
+    const MotionFigures walk = motionCase(report, records, thigh, setup, "gait_1x", "the 1-cycle gait at 60 Hz",
+                                          gait, hold);
+    std::vector<Pose> fast;
+    for (std::size_t f = 0; f < gait.size(); f += 4) fast.push_back(gait[f]);
+    motionCase(report, records, thigh, setup, "gait_4x", "the 1-cycle gait played 4 x faster (every 4th pose)", fast,
+               hold);
+    const JointValues straight = {{"hip_flexion_r", 0.0}, {"knee_angle_r", 0.0}};
+    std::vector<Pose> jump = ramp(thigh, straight, {{"hip_flexion_r", 1.2}, {"knee_angle_r", 0.0}}, 40);
+    for (int k = 0; k < 30; ++k) jump.push_back(jump.back());  // held 0.5 s: the stream skips or refines these
+    jump.push_back(poseFor(thigh, {{"hip_flexion_r", -0.3}, {"knee_angle_r", 0.0}}));
+    motionCase(report, records, thigh, setup, "hold_then_jump",
+               "hip flexion to 1.2 rad, held 0.5 s, then -0.3 rad in one frame", jump, hold);
+    std::vector<Pose> kick = ramp(thigh, straight, {{"hip_flexion_r", 1.6}, {"knee_angle_r", -2.0}}, 40);
+    const std::vector<Pose> swing =
+        ramp(thigh, {{"hip_flexion_r", 1.6}, {"knee_angle_r", -2.0}}, {{"hip_flexion_r", -0.35}, {"knee_angle_r", 0.0}}, 15);
+    kick.insert(kick.end(), swing.begin() + 1, swing.end());
+    motionCase(report, records, thigh, setup, "kick",
+               "hip 1.6 -> -0.35 rad and knee -2.0 -> 0 rad in 0.25 s (peak about 12 rad/s)", kick, hold);
+    const std::vector<Pose> deep = ramp(
+        thigh, {{"hip_flexion_r", 0.0}, {"hip_adduction_r", 0.0}, {"hip_rotation_r", 0.0}, {"knee_angle_r", 0.0}},
+        {{"hip_flexion_r", 1.5}, {"hip_adduction_r", 0.3}, {"hip_rotation_r", 0.4}, {"knee_angle_r", -2.0}}, 60);
+    motionCase(report, records, thigh, setup, "deep_combined_flexion",
+               "hip flexion 1.5, adduction 0.3, rotation 0.4 rad with the knee at -2 rad, over 1 s", deep, hold);
+    std::vector<double> sorted = walk.strain_p99;
+    std::sort(sorted.begin(), sorted.end());
+    if (!sorted.empty())
+      std::printf("[%6.1f s] the gait's median strain p99: %.3f (the yardstick of issue 29: 2 x is %.3f)\n",
+                  report.elapsedSeconds(), sorted[sorted.size() / 2], 2 * sorted[sorted.size() / 2]);
   }
 
   return bench::finish(records, options, "stability.json");

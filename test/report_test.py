@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Specifications of the benchmark report's arithmetic (tools/accuracy_report.py): averaging convergence curves over
-poses, and picking the fastest configuration per error target, on small hand-made inputs.
+"""Specifications of the benchmark report's arithmetic (tools/accuracy_report.py, tools/bench_report.py): averaging
+convergence curves over poses, picking the fastest configuration per error target, judging muscle lengths against
+issue 26's target and tabling the motions of the stability bench, on small hand-made inputs.
 
     PYENV_VERSION=system /usr/bin/python3 test/report_test.py
 """
@@ -13,6 +14,7 @@ import unittest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools"))
 import accuracy_report  # noqa: E402
+import bench_report  # noqa: E402
 
 
 def point(config, start, pose, iterations, wall_ms, rms_mm, **extra):
@@ -83,6 +85,58 @@ class Plots(unittest.TestCase):
             for name in ("speed_vs_error.png", "error_vs_resolution.png"):
                 self.assertGreater((pathlib.Path(directory) / name).stat().st_size, 1000, name)
         self.assertTrue(any("| 40 | 2.00 |" in line for line in lines))
+
+
+def length_row(muscle, r, product_mm, reference_mm, slopes=None, reference_slopes=None):
+    row = {"muscle": muscle, "reference": muscle + "_r", "r": r, "converged_r": r, "with_tendon_r": r,
+           "range_mm_product": product_mm, "converged_range_mm_product": product_mm, "range_mm_reference": reference_mm,
+           "range_ratio": product_mm / reference_mm}
+    for joint in bench_report.LENGTH_JOINTS:
+        row["mm_per_rad_product_" + joint] = (slopes or {}).get(joint, 0.0)
+        row["converged_mm_per_rad_product_" + joint] = (slopes or {}).get(joint, 0.0)
+        row["mm_per_rad_reference_" + joint] = (reference_slopes or {}).get(joint, 0.0)
+    return row
+
+
+class LengthTarget(unittest.TestCase):
+    def test_a_muscle_meets_it_with_r_excursion_and_every_large_slopes_sign(self):
+        row = length_row("a", 0.95, 40.0, 45.0, {"knee_angle_r": -30.0}, {"knee_angle_r": -40.0})
+        self.assertEqual(bench_report.length_target_misses(row), [])
+
+    def test_each_missed_part_is_named(self):
+        row = length_row("b", 0.85, 20.0, 45.0, {"knee_angle_r": 3.0}, {"knee_angle_r": -40.0})
+        misses = bench_report.length_target_misses(row)
+        self.assertIn("r 0.85", misses)
+        self.assertIn("excursion x0.44", misses)
+        self.assertIn("knee_angle_r sign", misses)
+
+    def test_small_references_are_judged_in_millimetres_and_small_slopes_not_at_all(self):
+        self.assertEqual(bench_report.length_target_misses(
+            length_row("c", 0.95, 7.0, 8.0, {"hip_flexion_r": 1.0}, {"hip_flexion_r": -4.0})), [])
+        self.assertEqual(bench_report.length_target_misses(length_row("d", 0.95, 2.0, 8.0)), ["excursion -6.0 mm"])
+
+    def test_the_section_counts_the_muscles_that_meet_it_and_lists_those_without_a_counterpart(self):
+        rows = [length_row("a", 0.95, 40.0, 45.0), length_row("b", 0.5, 40.0, 45.0),
+                {"muscle": "obturator", "reference": "none", "counterpart": "none in gait2392"}]
+        text = "\n".join(bench_report.lengths_section(rows))
+        self.assertIn("**1 of 2** muscles meet it streamed", text)
+        self.assertIn("No counterpart in gait2392: obturator.", text)
+
+
+class StabilityMotions(unittest.TestCase):
+    def test_motions_get_their_own_table_with_the_gaits_yardstick(self):
+        motion = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.12,
+                  "strain_p99_max": 0.2, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1,
+                  "deepest_particle": "", "particle_volume_error_max_pct": 2.0, "held_poses_until_settled": 4.0,
+                  "settled_converged": 1.0}
+        still = dict(motion, case="kick", restarts=1.0)
+        del still["held_poses_until_settled"]
+        text = "\n".join(accuracy_report.stability_section([motion, still]))
+        self.assertIn("2 x is 0.240", text)
+        self.assertIn("| gait_1x | gait | yes | 0 | 0.120 / 0.200 |", text)
+        self.assertIn("| kick | gait | yes | 1 |", text)
+        self.assertIn("still refining", text)
+        self.assertNotIn("| case | what | recoveries", text)
 
 
 if __name__ == "__main__":

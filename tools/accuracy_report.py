@@ -368,7 +368,8 @@ def _generic_table(rows, columns):
 
 
 def stability_section(rows):
-    cases = [row for row in rows if row.get("case") != "pbd_femur_flexion"]
+    motions = [row for row in rows if "strain_p99_median" in row]
+    cases = [row for row in rows if row.get("case") != "pbd_femur_flexion" and "strain_p99_median" not in row]
     pbd = [row for row in rows if row.get("case") == "pbd_femur_flexion"]
     lines = ["## Stability on hard cases (report issue)", "",
              "The bundled thigh13 muscles at 20 particles per fibre with the node's defaults "
@@ -405,6 +406,30 @@ def stability_section(rows):
                   + (f"Penetration deeper than that (a particle centre inside the bone proxy) remains in: "
                      + "; ".join(notes) + ". It is convergence unfinished within the frame's iterations, not "
                      "divergence." if deep else "No case leaves a particle centre inside a bone proxy."), ""]
+    if motions:
+        gait = next((row for row in motions if row["case"] == "gait_1x"), None)
+        lines += ["### Motions beyond the gait", "",
+                  "Each motion streamed as the node streams it (poses 1/60 s apart, thigh13, node defaults), then its "
+                  "last pose held for up to 2 s. *strain p99*: the 99th percentile of |l - l0| / l0 over the springs, "
+                  "per frame (median and worst frame of the motion); *volume*: the model's own, from tetrahedra over "
+                  "each muscle's particles (no surface, so no projection), the worst muscle and frame; *settled*: held "
+                  "poses until the stream stops refining (its residual criterion met, or the residual no longer "
+                  "falling)."
+                  + (f" The yardstick (issue 29): the gait's median strain p99, {gait['strain_p99_median']:.3f}; 2 x is "
+                     f"{2 * gait['strain_p99_median']:.3f}." if gait else ""), "",
+                  "| motion | what | finite | cold restarts | strain p99 median / worst frame | max strain | particle "
+                  "centres in bone mm (deepest) | volume error max % | settled after held poses |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for row in motions:
+            settled = (f"{int(row['held_poses_until_settled'])} "
+                       f"({'converged' if row['settled_converged'] else 'residual no longer falling'})"
+                       if "held_poses_until_settled" in row else "still refining")
+            lines.append(f"| {row['case']} | {row.get('description', '')} | {'yes' if row['finite'] else 'no'} | "
+                         f"{int(row['restarts'])} | {row['strain_p99_median']:.3f} / {row['strain_p99_max']:.3f} | "
+                         f"{row['max_strain']:.1f} | {row['max_particle_inside_bone_mm']:.2f}"
+                         f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} | "
+                         f"{row['particle_volume_error_max_pct']:.1f} | {settled} |")
+        lines += [""]
     for row in pbd:
         lines += ["### The 2019 PBD thesis scenario on our data", "",
                   f"{row.get('description', '')} ({int(row['particles'])} particles, {int(row['iterations'])} "

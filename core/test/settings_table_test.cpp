@@ -27,6 +27,8 @@ md::SettingValue anotherValue(const md::SettingSpec& spec, const md::SettingValu
       return std::get<double>(current) == spec.max ? spec.min : spec.max;
     case md::SettingSpec::Kind::choice:
       return spec.choices.front() == std::get<std::string>(current) ? spec.choices.back() : spec.choices.front();
+    case md::SettingSpec::Kind::text:
+      return std::get<std::string>(current) + "_changed";
   }
   return current;
 }
@@ -45,9 +47,11 @@ TEST(SettingsTable, EveryEntryIsUniqueAndChangesItsOwnFieldAndNoOther) {
     ASSERT_EQ(md::checkSetting(spec, value), "") << spec.name;
     spec.set(changed, value);
     EXPECT_TRUE(spec.get(changed) == value) << spec.name << " does not read back what was written";
-    for (const md::SettingSpec& other : md::coreSettingSpecs())
-      if (other.name != spec.name)
+    for (const md::SettingSpec& other : md::coreSettingSpecs()) {
+      if (other.name != spec.name) {
         EXPECT_TRUE(other.get(changed) == other.get(defaults)) << "writing " << spec.name << " changed " << other.name;
+      }
+    }
   }
 }
 
