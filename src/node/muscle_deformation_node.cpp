@@ -12,9 +12,11 @@ namespace {
 
 // A stamp this far ahead of the clock is a stamping or clock problem of the publisher, not latency.
 constexpr double kFutureStampToleranceS = 0.5;
-// While the input pauses, refined frames are published at most this often (and the converged one always): a user
-// watches the frame settle at 10 Hz without the node sending surfaces at the solver's pace.
-constexpr double kRefinedPublishPeriodS = 0.1;
+// While the input pauses, an unfinished frame is refined (and published) at most this often: a user watches it settle
+// at 10 Hz, and an idle node takes about a tenth of the machine (a refinement costs a frame's budget) instead of every
+// core for as long as the frame keeps improving, which starved other processes (a second node's stream dropped
+// poses beside it).
+constexpr double kIdleRefinementPeriodS = 0.1;
 
 // Sets a thread cap for as long as it lives, and lifts it however the scope is left.
 class ThreadCapHold {
@@ -174,37 +176,34 @@ void MuscleDeformationNode::onJointStates(const sensor_msgs::JointState::ConstPt
 }
 
 void MuscleDeformationNode::workerLoop() {
-  // Once the input has paused for two expected frame periods, an unfinished frame is refined once per period (a live
-  // stream never pauses that long; a slow recording or a held skeleton does).
+  // Once the input has paused for two expected frame periods, an unfinished frame is refined every
+  // kIdleRefinementPeriodS (a live stream never pauses that long; a slow recording or a held skeleton does).
   const double rate_hz = settings_.stream.expected_rate_hz > 0 ? settings_.stream.expected_rate_hz : 60.0;
   const auto idle_period = std::chrono::duration<double>(1.0 / rate_hz);
-  auto last_pose = std::chrono::steady_clock::now(), last_refined_publish = last_pose;
+  const auto refinement_period = std::chrono::duration<double>(kIdleRefinementPeriodS);
+  auto last_pose = std::chrono::steady_clock::now(), last_refinement = last_pose;
   while (true) {
     std::optional<ros::Time> stamp;
     {
       std::unique_lock<std::mutex> lock(pending_mutex_);
       const auto ready = [this] { return stopping_ || pending_.has_value(); };
       if (stream_->wantsRefinement())
-        pending_changed_.wait_for(lock, idle_period, ready);
+        pending_changed_.wait_for(lock, std::max<std::chrono::duration<double>>(idle_period, refinement_period), ready);
       else
         pending_changed_.wait(lock, ready);
       if (stopping_) return;
       stamp = pending_;
       pending_.reset();
     }
+    const auto now = std::chrono::steady_clock::now();
     if (stamp) {
-      last_pose = std::chrono::steady_clock::now();
+      last_pose = now;
       solvePose(*stamp);
-    } else if (std::chrono::steady_clock::now() - last_pose > 2 * idle_period && anyOutputWanted()) {
+    } else if (now - last_pose > 2 * idle_period && now - last_refinement >= refinement_period &&
+               anyOutputWanted()) {
+      last_refinement = now;
       const StreamStep step = stream_->refine(frameWants());
-      const auto now = std::chrono::steady_clock::now();
-      const bool settled = !stream_->wantsRefinement();
-      if (settled || now - last_refined_publish >= std::chrono::duration<double>(kRefinedPublishPeriodS)) {
-        last_refined_publish = now;
-        publish(step, ros::Time(step.stamp_s));
-      } else {
-        pose_diagnostics_.stepped(stream_->counters(), -1.0);
-      }
+      publish(step, ros::Time(step.stamp_s));
     }
   }
 }
