@@ -303,6 +303,10 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken, refined_published):
         if skinned:
             print(f"  skinned, before the volume constraint: mean {statistics.mean(statistics.mean(v) for v in skinned):.2f} %, "
                   f"max {max(max(v) for v in skinned):.2f} %")
+        offsets = [f for f in metrics if f.muscle_projection_offset_max_m]
+        if offsets:
+            print(f"  vertices the constraint moved: mean {1000 * statistics.mean(statistics.mean(f.muscle_projection_offset_mean_m) for f in offsets):.3f} mm, "
+                  f"max {1000 * max(max(f.muscle_projection_offset_max_m) for f in offsets):.2f} mm")
         deepest = max(metrics, key=lambda f: f.max_surface_inside_bone_m)
         print(f"surface inside bone        max {1000 * deepest.max_surface_inside_bone_m:.2f} mm"
               + (f" ({deepest.max_surface_inside_bone_muscle} in {deepest.max_surface_inside_bone_bone})"

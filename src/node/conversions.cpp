@@ -430,6 +430,8 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
           contacted ? std::max(frame.bone_corrections[m].max_depth_before_m, muscle.max_inside_bone_depth_m)
                     : muscle.max_inside_bone_depth_m);
       stats.muscle_max_particle_inside_bone_m.push_back(muscle.max_particle_inside_bone_depth_m);
+      stats.muscle_projection_offset_mean_m.push_back(corrected ? frame.volume_corrections[m].mean_offset_m : 0.0);
+      stats.muscle_projection_offset_max_m.push_back(corrected ? frame.volume_corrections[m].max_offset_m : 0.0);
     }
   } else {
     stats.surface_metrics_absent_reason =

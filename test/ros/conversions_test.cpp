@@ -218,6 +218,8 @@ TEST(Conversions, TheDeepestParticleInsideABoneIsNamedAndEveryMusclesFiguresAreL
   md::SurfaceVolumeCorrection iliacus_correction, psoas_correction;
   iliacus_correction.volume_error_before_pct = -3.5;
   psoas_correction.volume_error_before_pct = 1.25;
+  iliacus_correction.mean_offset_m = 0.0002;
+  iliacus_correction.max_offset_m = 0.0011;
   frame.volume_corrections = {iliacus_correction, psoas_correction};
   md::SurfaceBoneCorrection iliacus_contact, psoas_contact;
   iliacus_contact.vertices_moved = 40;
@@ -235,11 +237,14 @@ TEST(Conversions, TheDeepestParticleInsideABoneIsNamedAndEveryMusclesFiguresAreL
   EXPECT_EQ(stats.muscle_max_surface_inside_bone_m, (std::vector<double>{0.0005, 0.0}));
   EXPECT_EQ(stats.muscle_max_particle_inside_bone_m, (std::vector<double>{0.0003, 0.0012}));
   EXPECT_EQ(stats.muscle_skinned_max_surface_inside_bone_m, (std::vector<double>{0.009, 0.0}));
+  EXPECT_EQ(stats.muscle_projection_offset_mean_m, (std::vector<double>{0.0002, 0.0}));
+  EXPECT_EQ(stats.muscle_projection_offset_max_m, (std::vector<double>{0.0011, 0.0}));
 
   // Without the volume constraint the skinned surface is the one shown: the same volume error.
   frame.volume_corrections.clear();
   const muscle_deformation::DeformationStats uncorrected = node::statsToMessage(frame, std_msgs::Header());
   EXPECT_EQ(uncorrected.muscle_skinned_volume_error_pct, uncorrected.muscle_volume_error_pct);
+  EXPECT_EQ(uncorrected.muscle_projection_offset_max_m, (std::vector<double>{0.0, 0.0})) << "nothing was moved";
   frame.bone_corrections.clear();
   const muscle_deformation::DeformationStats uncontacted = node::statsToMessage(frame, std_msgs::Header());
   EXPECT_EQ(uncontacted.muscle_skinned_max_surface_inside_bone_m, uncontacted.muscle_max_surface_inside_bone_m);
