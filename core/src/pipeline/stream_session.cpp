@@ -75,9 +75,9 @@ StreamStep StreamSession::solveFrame(double stamp_s, const BoneTransforms& trans
     step.frame = &frame;
     ++counters_.solved;
     if (step.restarted) ++counters_.resets;
-    stalled_refinements_ = 0;
     count(frame);
-    best_residual_ = frame.stats.solver.residual;
+    best_residual_ = frame.stats.solver.residual;  // a new frame: its refinement starts over
+    stalled_refinements_ = 0;
     last_stamp_s_ = stamp_s;
     if (frame.stats.finite && !frame.stats.solver.diverged) {
       poses_->accept(stamp_s, transforms);
@@ -87,12 +87,7 @@ StreamStep StreamSession::solveFrame(double stamp_s, const BoneTransforms& trans
       recovering_ = true;
     }
   } catch (const std::exception& e) {
-    ++counters_.failed;
-    restart();
-    recovering_ = true;
-    step.outcome = StreamOutcome::failed;
-    step.frame = nullptr;
-    step.reason = e.what();
+    failed(step, e);
   }
   return step;
 }
@@ -105,7 +100,16 @@ void StreamSession::count(const FrameResult& frame) {
   // without one (Verlet, local/global) leaves nothing to judge it by.
   last_frame_unfinished_ = settings_.refine_unfinished_frames && frame.stats.finite && !frame.stats.solver.diverged &&
                            frame.stats.solver.residual >= 0 && !frame.stats.solver.converged;
+}
 
+void StreamSession::failed(StreamStep& step, const std::exception& error) {
+  // A solve that threw leaves nothing to continue from: the next pose starts cold, counted as a recovery.
+  ++counters_.failed;
+  restart();
+  recovering_ = true;
+  step.outcome = StreamOutcome::failed;
+  step.frame = nullptr;
+  step.reason = error.what();
 }
 
 bool StreamSession::wantsRefinement() const { return last_frame_unfinished_ && poses_->hasPrevious(); }
@@ -139,11 +143,7 @@ StreamStep StreamSession::refine(const FrameWants& wants) {
       recovering_ = true;
     }
   } catch (const std::exception& e) {
-    ++counters_.failed;
-    restart();
-    recovering_ = true;
-    step.outcome = StreamOutcome::failed;
-    step.reason = e.what();
+    failed(step, e);
   }
   return step;
 }

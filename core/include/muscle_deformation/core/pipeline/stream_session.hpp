@@ -7,6 +7,7 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
 #include <cstdint>
+#include <exception>
 #include <memory>
 #include <string>
 #include <vector>
@@ -108,6 +109,7 @@ class StreamSession {
   StreamStep solveFrame(double stamp_s, const BoneTransforms& transforms, StartMode start, double elapsed_s,
                         const FrameWants& wants, StreamStep step);
   void count(const FrameResult& frame);
+  void failed(StreamStep& step, const std::exception& error);
 
   StreamSessionSettings settings_;
   std::unique_ptr<DeformationPipeline> pipeline_;
