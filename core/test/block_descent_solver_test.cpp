@@ -311,6 +311,54 @@ TEST(BlockDescent, TissueDragWeighsByTheFrameIntervalWithinItsClamp) {
   EXPECT_FALSE(validate(bad).empty());
 }
 
+namespace {
+// A fibre of three particles 1 m apart along x, ends fixed, unit springs (1 N/m each): the middle particle's summed
+// stiffness is 2 N/m, so with relaxation 0.005 s over 0.01 s its drag weight is w = 1 N/m. Carried along the fibre by
+// d, it moves u = a w d / (2 + a w) with a = drag_along_fibre; carried across, the drag across is the same for any a.
+MassSpringSystem threeParticleFibre() {
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, 3);
+  positions.row(0) << 0, 1, 2;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.is_fixed[0] = system.is_fixed[2] = 1;
+  return system;
+}
+Eigen::Vector3d fibreMiddleAnswer(double drag_along_fibre, const Eigen::Vector3d& carried) {
+  BlockDescentSettings settings;
+  settings.tissue_relaxation_s = 0.005;
+  settings.drag_along_fibre = drag_along_fibre;
+  const MassSpringSystem system = threeParticleFibre();
+  BlockDescentSolver solver(system, settings);
+  solver.setFrameInterval(0.01);
+  ParticleState state = stateAt(system.rest_position);
+  state.carried_position = state.position;
+  state.carried_position.col(1) = carried;
+  const SolveStats stats = solver.solve(state, converging(500, 1e-12));
+  EXPECT_TRUE(stats.converged) << "drag_along_fibre " << drag_along_fibre;
+  EXPECT_LT(solver.residualOf(state), 1e-10);
+  return state.position.col(1);
+}
+}  // namespace
+
+TEST(BlockDescent, DragAlongTheFibreIsItsOwnShareOfTheTissueDrag) {
+  const Eigen::Vector3d along(1.3, 0, 0);
+  for (const double a : {1.0, 0.25, 0.0}) {
+    const Eigen::Vector3d x = fibreMiddleAnswer(a, along);
+    EXPECT_NEAR(x.x() - 1.0, a * 0.3 / (2.0 + a), 1e-9) << "drag_along_fibre " << a;
+    EXPECT_NEAR(x.tail<2>().norm(), 0.0, 1e-12);
+  }
+  // Across the fibre the drag is the whole drag whatever its share along.
+  const Eigen::Vector3d across(1.0, 0.3, 0);
+  const Eigen::Vector3d isotropic = fibreMiddleAnswer(1.0, across);
+  EXPECT_GT(isotropic.y(), 0.25);  // the springs at their rest length barely resist a sideways move
+  EXPECT_LT((fibreMiddleAnswer(0.0, across) - isotropic).norm(), 1e-9);
+  EXPECT_LT((fibreMiddleAnswer(0.5, across) - isotropic).norm(), 1e-9);
+  BlockDescentSettings bad;
+  bad.drag_along_fibre = 1.5;
+  EXPECT_FALSE(validate(bad).empty());
+  bad.drag_along_fibre = -0.1;
+  EXPECT_FALSE(validate(bad).empty());
+}
+
 TEST(BlockDescent, ThePredictedStartChangesWhereSweepsBeginNotTheFramesAnswer) {
   const SyntheticScene scene = makeSyntheticThigh(4, 4);
   SimulationSettings settings;

@@ -50,6 +50,26 @@ TEST(NewtonKrylov, TissueDragAnswerOfAFloppyParticleMatchesTheAnalyticOne) {
   EXPECT_LT((state.position.col(1) - expected).norm(), 1e-9);
 }
 
+TEST(NewtonKrylov, DragAlongTheFibreMatchesTheAnalyticAnswer) {
+  // Three particles 1 m apart on a fibre, ends fixed, unit springs: the middle one's drag weight is 1 N/m; carried
+  // 0.3 m along the fibre with a quarter of the drag along it, it moves 0.25 x 0.3 / (2 + 0.25) (block descent's test).
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, 3);
+  positions.row(0) << 0, 1, 2;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.is_fixed[0] = system.is_fixed[2] = 1;
+  BlockDescentSettings energy;
+  energy.tissue_relaxation_s = 0.005;
+  energy.drag_along_fibre = 0.25;
+  NewtonKrylovSolver solver(system, energy, {});
+  solver.setFrameInterval(0.01);
+  ParticleState state = stateAt(system.rest_position);
+  state.carried_position = state.position;
+  state.carried_position.col(1) = Eigen::Vector3d(1.3, 0, 0);
+  // 1e-9: the line search compares frame energies of about 0.04 J, so steps below ~1e-10 N cannot be told apart.
+  EXPECT_TRUE(solver.solve(state, converging(100, 1e-9)).converged);
+  EXPECT_NEAR(state.position(0, 1) - 1.0, 0.25 * 0.3 / 2.25, 1e-9);
+}
+
 TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {
   // The synthetic thigh after a warm pose change, with contacts and the node's tissue drag: both solvers converged to
   // a tight force residual from the same start end in the same state.

@@ -102,6 +102,10 @@ std::vector<SettingSpec> buildTable() {
              "block_descent: tissue drag, the time constant with which a particle pulled off its springs' balance "
              "returns through the tissue that holds it (0 = none: the quasi-static equilibrium)",
              [block_descent](CoreSettings& s) -> double& { return block_descent(s).tissue_relaxation_s; }),
+      number("drag_along_fibre", "", 0.0, 1.0,
+             "block_descent / newton_krylov: the share of the tissue drag that acts along the fibres (1 = the same in "
+             "every direction; below 1 the belly slides along its fibres more freely than it moves across them)",
+             [block_descent](CoreSettings& s) -> double& { return block_descent(s).drag_along_fibre; }),
       number("volume_stiffness", "", 0.0, 1e9,
              "block_descent / newton_krylov: incompressibility, each muscle's skinned volume kept by a term of the "
              "frame energy (0 = none); a relative volume change e pulls each skin particle with about this x e of the "

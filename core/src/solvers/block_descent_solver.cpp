@@ -4,7 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <stdexcept>
+#include <tuple>
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -64,6 +66,19 @@ struct Block {
                                          c02 * rx + c12 * ry + c22 * rz);
   }
 };
+
+// The tissue drag's force D (c - x) and Hessian D on a particle at x carried to c, D = w (I - (1 - along) t t^T) for
+// the unit fibre direction t (t = 0: w I).
+inline void addDrag(double w, double along, const Eigen::Vector3d& t, const Eigen::Vector3d& x,
+                    const Eigen::Vector3d& carried, Block& block) {
+  const Eigen::Vector3d pull = carried - x;
+  const double cut = w * (1.0 - along) * t.dot(pull);
+  block.fx += w * pull.x() - cut * t.x();
+  block.fy += w * pull.y() - cut * t.y();
+  block.fz += w * pull.z() - cut * t.z();
+  block.addIsotropic(w);
+  block.addOuter(-w * (1.0 - along), t.x(), t.y(), t.z());
+}
 
 // The volume term's force and curvature on particle p (volume_term.hpp): -k (V - V_rest) g and k g g^T.
 inline void addVolumeForce(const VolumeTerm& term, const std::vector<double>& volumes, const Eigen::Matrix3Xd& gradients,
@@ -159,6 +174,8 @@ std::string validate(const BlockDescentSettings& settings) {
     return "tissue_relaxation_s must be a finite number >= 0";
   if (!(settings.volume_stiffness >= 0) || !std::isfinite(settings.volume_stiffness))
     return "volume_stiffness must be a finite number >= 0";
+  if (!(settings.drag_along_fibre >= 0 && settings.drag_along_fibre <= 1))
+    return "drag_along_fibre must lie in [0, 1]";
   return {};
 }
 
@@ -251,6 +268,24 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   }
   for (Eigen::Index i = 0; i < n; ++i)
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
+  // Neighbours along each fibre (muscle, fibre, sample), whatever order the particles were stored in.
+  fibre_previous_.assign(static_cast<std::size_t>(n), -1);
+  fibre_next_.assign(static_cast<std::size_t>(n), -1);
+  if (system_.fibre_of.size() == static_cast<std::size_t>(n) && system_.sample_of.size() == static_cast<std::size_t>(n) &&
+      system_.muscle_of.size() == static_cast<std::size_t>(n)) {
+    std::map<std::tuple<std::int32_t, std::int32_t, std::int32_t>, std::int32_t> sample_index;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const std::size_t u = static_cast<std::size_t>(i);
+      if (system_.fibre_of[u] != kTendonAnchor)
+        sample_index[{system_.muscle_of[u], system_.fibre_of[u], system_.sample_of[u]}] = static_cast<std::int32_t>(i);
+    }
+    for (const auto& [key, index] : sample_index) {
+      const auto next = sample_index.find({std::get<0>(key), std::get<1>(key), std::get<2>(key) + 1});
+      if (next == sample_index.end()) continue;
+      fibre_next_[static_cast<std::size_t>(index)] = next->second;
+      fibre_previous_[static_cast<std::size_t>(next->second)] = index;
+    }
+  }
   buildColouring();
   updateDragWeights();
   // Springs repacked in visiting order: a sweep then reads them front to back, instead of jumping through the
@@ -367,6 +402,28 @@ void BlockDescentSolver::updateDragWeights() {
   const double factor = settings_.tissue_relaxation_s / frame_interval_s_;
   drag_weight_.setZero(system_.particleCount());
   for (const std::int32_t p : free_particles_) drag_weight_[p] = factor * spring_stiffness_sum_[p];
+}
+
+void BlockDescentSolver::updateDragDirections(const Eigen::Matrix3Xd& anchor) {
+  if (!anisotropicDrag()) return;
+  drag_direction_.setZero(3, system_.particleCount());
+  for (const std::int32_t p : free_particles_) {
+    const std::int32_t before = fibre_previous_[static_cast<std::size_t>(p)], after = fibre_next_[static_cast<std::size_t>(p)];
+    if (before < 0 && after < 0) continue;
+    const Eigen::Vector3d along = anchor.col(after >= 0 ? after : p) - anchor.col(before >= 0 ? before : p);
+    const double length = along.norm();
+    if (length > 0) drag_direction_.col(p) = along / length;
+  }
+}
+
+double BlockDescentSolver::dragEnergy(std::int32_t p, const Eigen::Vector3d& x, const Eigen::Vector3d& carried) const {
+  const Eigen::Vector3d d = x - carried;
+  double squared = d.squaredNorm();
+  if (anisotropicDrag()) {
+    const double along = drag_direction_.col(p).dot(d);
+    squared -= (1.0 - settings_.drag_along_fibre) * along * along;
+  }
+  return 0.5 * drag_weight_[p] * squared;
 }
 
 void BlockDescentSolver::setFrameInterval(double seconds) {
@@ -518,7 +575,10 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const std::int32_t spring_end = slot_spring_begin_[static_cast<std::size_t>(k) + 1];
       const bool has_contacts = contact_end > contact_begin;
       const double drag = drag_weight_[p];
+      const double drag_along = settings_.drag_along_fibre;
       const Eigen::Vector3d carried = drag_anchor_->col(p);
+      const Eigen::Vector3d fibre_direction =
+          anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero();
       // The muscle's volume term: V is linear in this particle's position (volume_term.hpp), V = V_now + g . (x - start).
       const std::int32_t muscle = system_.muscle_of[static_cast<std::size_t>(p)];
       const bool volume_on = volume_.active() && volume_.stiffness[static_cast<std::size_t>(muscle)] > 0 &&
@@ -540,7 +600,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
           energy += contactEnergy(at, entry, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
         }
-        return energy + 0.5 * drag * (at - carried).squaredNorm();
+        return energy + dragEnergy(p, at, carried);
       };
       Eigen::Vector3d x = start;
       const int newton_steps = has_contacts ? settings_.contact_newton_steps : 1;
@@ -559,10 +619,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
           addContact(x, entry, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
         }
-        block.fx += drag * (carried.x() - x.x());
-        block.fy += drag * (carried.y() - x.y());
-        block.fz += drag * (carried.z() - x.z());
-        block.addIsotropic(drag);
+        addDrag(drag, drag_along, fibre_direction, x, carried, block);
         if (newton == 0) {
           // The residual counts the volume term's force too, as the muscle's volume stands now.
           const Eigen::Vector3d pressure = volume_k * volume_excess * volume_g;
@@ -639,6 +696,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
   evaluateVolume(state.position);
   const Eigen::Matrix3Xd& position = state.position;
   const bool with_drag = state.carried_position.cols() == position.cols();
+  if (with_drag) updateDragDirections(state.carried_position);
   double sum = 0;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::int32_t p = coloured_particles_[slot];
@@ -657,12 +715,10 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
       addContact(Eigen::Vector3d(position.col(p)), current, pair_kc, 1.0, block);
     }
-    if (with_drag) {
-      const Eigen::Vector3d pull = drag_weight_[p] * (state.carried_position.col(p) - position.col(p));
-      block.fx += pull.x();
-      block.fy += pull.y();
-      block.fz += pull.z();
-    }
+    if (with_drag)
+      addDrag(drag_weight_[p], settings_.drag_along_fibre,
+              anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero(), position.col(p),
+              state.carried_position.col(p), block);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     sum += block.forceSquared();
   }
@@ -673,6 +729,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
 void BlockDescentSolver::beginFrame(const ParticleState& state, double margin_m) {
   entry_position_ = state.position;
   drag_anchor_ = state.carried_position.cols() == state.position.cols() ? &state.carried_position : &entry_position_;
+  updateDragDirections(*drag_anchor_);
   gatherContacts(state, margin_m);
 }
 
@@ -705,7 +762,7 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
       energy += share * contactEnergy(x, atPositions(entry, position),
                                       entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_));
     }
-    energy += 0.5 * drag_weight_[p] * (x - drag_anchor_->col(p)).squaredNorm();
+    energy += dragEnergy(p, x, drag_anchor_->col(p));
   }
   if (volume_.active()) {
     std::vector<double> volumes;
@@ -740,12 +797,10 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
       addContact(x, atPositions(entry, position),
                  entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
     }
-    const double drag = drag_weight_[p];
-    const Eigen::Vector3d pull = drag * (drag_anchor_->col(p) - x);
-    block.fx += pull.x();
-    block.fy += pull.y();
-    block.fz += pull.z();
-    block.addIsotropic(drag + regularisation_[p]);
+    addDrag(drag_weight_[p], settings_.drag_along_fibre,
+            anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero(), x,
+            drag_anchor_->col(p), block);
+    block.addIsotropic(regularisation_[p]);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     force.col(p) = Eigen::Vector3d(block.fx, block.fy, block.fz);
     Eigen::Matrix3d hessian;
@@ -783,6 +838,10 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
     const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
     const Eigen::Vector3d vp = direction.col(p);
     Eigen::Vector3d sum = (drag_weight_[p] + regularisation_[p]) * vp;
+    if (anisotropicDrag()) {
+      const Eigen::Vector3d t = drag_direction_.col(p);
+      sum -= drag_weight_[p] * (1.0 - settings_.drag_along_fibre) * t.dot(vp) * t;
+    }
     const auto apply = [&](const Block& b, const Eigen::Vector3d& relative) {
       sum.x() += b.hxx * relative.x() + b.hxy * relative.y() + b.hxz * relative.z();
       sum.y() += b.hxy * relative.x() + b.hyy * relative.y() + b.hyz * relative.z();
@@ -822,6 +881,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const StoppingSetting
                                 " particles, the system " + std::to_string(n));
   entry_position_ = state.position;
   drag_anchor_ = state.carried_position.cols() == n ? &state.carried_position : &entry_position_;
+  updateDragDirections(*drag_anchor_);
   const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
   const bool chebyshev = settings_.chebyshev_rho > 0;
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;

@@ -56,6 +56,12 @@ struct BlockDescentSettings {
   // it through the tissue that holds it (see the formula above). 0 = none: the quasi-static equilibrium of springs and
   // contacts alone (the analytic cases of the tests); the node's default is in nodeDefaultSettings().
   double tissue_relaxation_s = 0.0;
+  // The share of the tissue drag that acts along the fibre, in [0, 1]: the drag's tensor is
+  // w_p ((I - t t^T) + drag_along_fibre t t^T) with t the fibre's direction at the particle where the tissue carries it.
+  // 1 = the same drag in every direction (the seeds' isotropic damping); below 1 the belly slides along its own fibres
+  // more freely than it moves across them, so a joint that shortens or lengthens a muscle's path reaches its belly
+  // within the frame (the slow whole-length mode is along the fibres).
+  double drag_along_fibre = 1.0;
   // Incompressibility: each muscle's volume term (volume_term.hpp) has stiffness k_m = volume_stiffness x material
   // constant x (skin particles) / (rest volume x rest skin area), so that a relative volume change e pulls each particle
   // the skin follows with about volume_stiffness x e of the springs' material constant. 0 = none (the seeds' model);
@@ -215,6 +221,15 @@ class BlockDescentSolver final : public SoftBodySolver {
   Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
   double frame_interval_s_ = kNominalFrameIntervalS;
   const Eigen::Matrix3Xd* drag_anchor_ = nullptr;  // during a solve: where the tissue carries each particle
+  // Each particle's neighbours along its fibre (-1: none), and the unit fibre direction at the drag anchor (zero where
+  // the particle has no neighbour, or the drag acts alike in every direction).
+  std::vector<std::int32_t> fibre_previous_, fibre_next_;
+  Eigen::Matrix3Xd drag_direction_;
+  bool anisotropicDrag() const { return settings_.drag_along_fibre < 1.0; }
+  // drag_direction_ from the fibres at `anchor` (nothing when the drag is isotropic).
+  void updateDragDirections(const Eigen::Matrix3Xd& anchor);
+  // The drag's energy 1/2 (x - c)^T D (x - c) of particle p at x with anchor c.
+  double dragEnergy(std::int32_t p, const Eigen::Vector3d& x, const Eigen::Vector3d& carried) const;
   Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m             // per particle, N/m: keeps every 3 x 3 block invertible
 
   ContactQuery contact_query_;
