@@ -25,6 +25,7 @@
 //   realtime_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
+#include "machine_floor.hpp"
 #include "node_defaults.hpp"
 #include "stream_play.hpp"
 
@@ -39,6 +40,7 @@
 #include <cstdio>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -107,6 +109,8 @@ struct Measured {
   double bone_penetration_mm = 0;
   double residual = 0;  // common yardstick
   int iterations = 0;
+  double sweep_ms = 0;  // the frame's solve time in its sweeps over their count (block descent; 0 otherwise)
+  BlockDescentSolver::SweepCost sweep_cost;
 };
 
 // The common yardstick (residualOf) for one pipeline's states, with the pipeline's own contacts and the node's
@@ -135,12 +139,17 @@ Measured measured(const DeformationPipeline& pipeline, const FrameStats& stats, 
   ParticleState judged = pipeline.state();
   judged.carried_position = carried;
   m.residual = yardstick.residualOf(judged);
+  if (pipeline.settings().simulation.solver_kind == SolverKind::block_descent && stats.solver.iterations > 0) {
+    m.sweep_ms = stats.solver.mss_ms / stats.solver.iterations;
+    m.sweep_cost = yardstick.sweepCost(judged);
+  }
   return m;
 }
 
 struct Summary {
   double frame_ms_median = 0, frame_ms_max = 0, rms_mm_mean = 0, rms_mm_max = 0, bone_penetration_max_mm = 0;
   double iterations_mean = 0, residual_median = 0;
+  double sweep_ms_median = 0, sweep_bytes_median = 0, sweep_flops_median = 0;  // 0: not a block-descent configuration
 };
 
 Summary summarise(const std::vector<Measured>& rows) {
@@ -157,12 +166,32 @@ Summary summarise(const std::vector<Measured>& rows) {
   }
   s.frame_ms_median = bench::median(times);
   s.residual_median = bench::median(residuals);
+  std::vector<double> sweep_ms, bytes, flops;
+  for (const Measured& m : rows)
+    if (m.sweep_ms > 0) {
+      sweep_ms.push_back(m.sweep_ms);
+      bytes.push_back(m.sweep_cost.bytes);
+      flops.push_back(m.sweep_cost.flops);
+    }
+  if (!sweep_ms.empty()) {
+    s.sweep_ms_median = bench::median(sweep_ms);
+    s.sweep_bytes_median = bench::median(bytes);
+    s.sweep_flops_median = bench::median(flops);
+  }
   return s;
 }
 
 double elapsedSeconds() {
   static const auto start = std::chrono::steady_clock::now();
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// The machine's floor on one thread and on every core, measured once at the start of the run.
+const bench::MachineFloor& machineFloor(int threads) {
+  static const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  static const bench::MachineFloor one = bench::measureMachineFloor(1);
+  static const bench::MachineFloor every = bench::measureMachineFloor(cores);
+  return threads == 1 ? one : every;
 }
 
 void record(bench::JsonRecords& records, const std::string& scene, const std::string& mode, const Config& config,
@@ -185,7 +214,25 @@ void record(bench::JsonRecords& records, const std::string& scene, const std::st
   records.add("predict_start", drag && settings.prediction.predict_start ? 1.0 : 0.0);
   records.add("node_default", config.node_default ? 1.0 : 0.0);
   records.add("particles", static_cast<double>(particles));
+  double roofline_ratio = 0;
+  if (s.sweep_ms_median > 0) {
+    // Threads 0 = every core (as the node's default); kThreadsMeasured also sweeps on every core when it pays.
+    const bench::MachineFloor& floor = machineFloor(config.threads);
+    roofline_ratio = s.sweep_ms_median / floor.floorMilliseconds(s.sweep_bytes_median, s.sweep_flops_median);
+    records.add("sweep_ms", s.sweep_ms_median);
+    records.add("sweep_bytes", s.sweep_bytes_median);
+    records.add("sweep_flops", s.sweep_flops_median);
+    records.add("bandwidth_gbs", floor.bandwidth_gbs);
+    records.add("gflops", floor.gflops);
+    records.add("floor_threads", floor.threads);
+    records.add("roofline_ratio", roofline_ratio);
+  }
   records.end();
+  if (roofline_ratio > 0)
+    std::printf("[%6.1f s]   sweep %.2f ms median: %.2f MB, %.1f Mflop; machine on %d threads %.1f GB/s, %.1f Gflop/s: "
+                "%.1fx its floor\n", elapsedSeconds(), s.sweep_ms_median, 1e-6 * s.sweep_bytes_median,
+                1e-6 * s.sweep_flops_median, machineFloor(config.threads).threads,
+                machineFloor(config.threads).bandwidth_gbs, machineFloor(config.threads).gflops, roofline_ratio);
   std::printf("[%6.1f s] %-7s %-6s %-44s threads %d: frame %6.1f ms median, %6.1f max; RMS to reference %.3f mean, "
               "%.3f max mm; bone penetration %.2f mm; residual %.2e; %.1f iterations%s\n",
               elapsedSeconds(), scene.c_str(), mode.c_str(), config.label.c_str(), config.threads, s.frame_ms_median,
@@ -203,6 +250,11 @@ int main(int argc, char** argv) {
   const CoreSettings node = bench::loadNodeDefaults();
   const StoppingSettings& node_sweeps = node.stream.stopping.sweeps;
   elapsedSeconds();
+  for (const int threads : {1, 0}) {
+    const bench::MachineFloor& floor = machineFloor(threads);
+    std::printf("[%6.1f s] machine on %d thread(s): triad %.1f GB/s, multiply-add %.1f Gflop/s\n", elapsedSeconds(),
+                floor.threads, floor.bandwidth_gbs, floor.gflops);
+  }
 
   // The configurations compared, the node's defaults among them (config/muscle_deformation.yaml).
   Config node_default;

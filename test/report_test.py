@@ -15,6 +15,7 @@ import unittest
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools"))
 import accuracy_report  # noqa: E402
 import bench_report  # noqa: E402
+import realtime_report  # noqa: E402
 
 
 def point(config, start, pose, iterations, wall_ms, rms_mm, **extra):
@@ -138,6 +139,27 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("still refining", text)
         self.assertNotIn("| case | what | recoveries", text)
 
+
+
+class RooflineTest(unittest.TestCase):
+    def _row(self, **extra):
+        row = {"scene": "all_26", "mode": "stream", "solver": "block_descent", "configuration": "node default",
+               "threads": 0, "iterations": 1.0, "frame_ms_median": 20.0, "frame_ms_max": 30.0, "rms_mm_mean": 0.5,
+               "rms_mm_max": 1.0, "bone_penetration_max_mm": 0.0, "residual_median": 0.3, "node_default": 1,
+               "particles": 1000}
+        row.update(extra)
+        return row
+
+    def test_the_floor_names_the_machine_and_judges_the_default_sweep(self):
+        row = self._row(sweep_ms=10.0, sweep_bytes=20e6, sweep_flops=30e6, bandwidth_gbs=16.0, gflops=20.0,
+                        floor_threads=2, roofline_ratio=6.0)
+        text = "\n".join(realtime_report.floor_lines([row]))
+        self.assertIn("on 2 threads 16.0 GB/s and 20.0 Gflop/s", text)
+        self.assertIn("20.0 MB", text)
+        self.assertIn("6.0x its floor; target <= 2.5x, missed by 2.4x", text)
+
+    def test_rows_without_a_sweep_measure_say_nothing(self):
+        self.assertEqual(realtime_report.floor_lines([self._row()]), [])
 
 if __name__ == "__main__":
     unittest.main()

@@ -103,16 +103,47 @@ def realtime_section(rows, img_dir, img_link_prefix="img/"):
                              f"1e-3) solving {int(agreement['frames'])} of the frames from the reference's start, "
                              f"{agreement['newton_ms_median']:.0f} ms median per frame ({per_frame}).")
             lines += ["", "| configuration | threads | iterations | frame ms median / max | RMS to reference mm "
-                          "mean / max | residual | bone penetration max mm |", "|---|---|---|---|---|---|---|"]
+                          "mean / max | residual | bone penetration max mm | sweep ms (x its floor) |",
+                      "|---|---|---|---|---|---|---|---|"]
             for row in table:
                 name = row["configuration"] + (" **(default)**" if row["node_default"] else "")
+                sweep = (f"{row['sweep_ms']:.1f} ({row['roofline_ratio']:.1f}x)" if "roofline_ratio" in row
+                         else "-")
                 lines.append(f"| {name} | {int(row['threads'])} | {row['iterations']:.1f} | "
                              f"{row['frame_ms_median']:.1f} / {row['frame_ms_max']:.1f} | "
                              f"{row['rms_mm_mean']:.2f} / {row['rms_mm_max']:.2f} | {row['residual_median']:.2g} | "
-                             f"{row['bone_penetration_max_mm']:.2f} |")
+                             f"{row['bone_penetration_max_mm']:.2f} | {sweep} |")
             lines.append("")
     lines += [f"![error against frame time]({img_link_prefix}realtime.png)", ""]
+    lines += floor_lines(rows)
     lines += targets_lines(rows)
+    return lines
+
+
+def floor_lines(rows):
+    """The machine's floor measured in the run, and how far the node's sweep is from it."""
+    swept = [r for r in rows if "roofline_ratio" in r]
+    if not swept:
+        return []
+    machines = {}
+    for r in swept:
+        machines[int(r["floor_threads"])] = (r["bandwidth_gbs"], r["gflops"])
+    measured = "; ".join(f"on {threads} thread{'s' if threads > 1 else ''} {bandwidth:.1f} GB/s and {gflops:.1f} "
+                         f"Gflop/s" for threads, (bandwidth, gflops) in sorted(machines.items()))
+    lines = ["**The floor.** The run measures the machine (a STREAM-like triad over arrays far beyond the caches, and "
+             f"independent multiply-adds, compiled like the solver): {measured}. A sweep must at least stream its "
+             "arrays once and do one Newton step per particle (`BlockDescentSolver::sweepCost` counts both from the "
+             "data structures); the larger of bytes / bandwidth and flops / rate is its floor, and *x its floor* is "
+             "the sweep's median time (its frame's time in the sweeps over their count) over it."]
+    default = next((r for r in swept if r["scene"] == "all_26" and r["mode"] == "stream" and r["node_default"]), None)
+    if default:
+        ratio = default["roofline_ratio"]
+        lines.append("")
+        lines.append(f"- The node's default stream of all 26 muscles: a sweep moves {default['sweep_bytes'] / 1e6:.1f} "
+                     f"MB and does {default['sweep_flops'] / 1e6:.1f} Mflop, {default['sweep_ms']:.1f} ms median, "
+                     f"{ratio:.1f}x its floor; target <= 2.5x, "
+                     f"{'met' if ratio <= 2.5 else f'missed by {ratio / 2.5:.1f}x'}.")
+    lines.append("")
     return lines
 
 

@@ -726,6 +726,38 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
   return std::sqrt(sum / free_count) / material_constant_n_;
 }
 
+// The counting is of the least a sweep must do, so the floor it gives is a lower bound and a sweep's time over it an
+// upper bound of how far the sweep is from what the machine allows:
+// - bytes: every array the sweep reads streamed once and every array it writes written once (a neighbour's position
+//   read again from cache is not counted again): per free particle its position read and written, where the tissue
+//   carries it, its drag weight, regularisation, contact stiffness, step bound, residual, step length and volume
+//   change, its index in the visiting order and its offsets into the spring and contact lists; per packed spring its
+//   entry (the other end, stiffness, rest length); per listed contact its entry; the fixed particles' positions once.
+//   With the drag along the fibre its direction, with the volume term the gradient, per particle.
+// - flops: one Newton step per particle (a particle with contacts may take up to contact_newton_steps and halve them):
+//   46 per spring (addSpring: the difference 3, squared length 5, square root and inverse 2, pull 3, force 6,
+//   transverse share 1, isotropic part 4, outer product 4 + 18), 42 per contact entry (its depth 13 at the start and
+//   at the end of the step, the push 7, the outer product 22; counted once), 24 for the drag (30 along a fibre), 45
+//   for the 3 x 3 solve by cofactors, 5 for the residual and 9 for the step's length and update; the volume term's
+//   share is not counted.
+BlockDescentSolver::SweepCost BlockDescentSolver::sweepCost(const ParticleState& state) {
+  gatherContacts(state);
+  constexpr double kVector = 3 * sizeof(double);
+  const double free_count = static_cast<double>(free_particles_.size());
+  const double fixed_count = static_cast<double>(system_.particleCount()) - free_count;
+  const double springs = static_cast<double>(neighbours_.size());
+  const double contacts = static_cast<double>(contact_entries_.size());
+  double per_particle_bytes = 3 * kVector + 7 * sizeof(double) + 4 * sizeof(std::int32_t);
+  if (anisotropicDrag()) per_particle_bytes += kVector;
+  if (volume_.active()) per_particle_bytes += kVector;
+  SweepCost cost;
+  cost.bytes = free_count * per_particle_bytes + springs * sizeof(NeighbourSpring) +
+               contacts * sizeof(ContactEntry) + fixed_count * kVector;
+  const double drag_flops = anisotropicDrag() ? 30 : 24;
+  cost.flops = 46 * springs + 42 * contacts + free_count * (drag_flops + 45 + 5 + 9);
+  return cost;
+}
+
 void BlockDescentSolver::beginFrame(const ParticleState& state, double margin_m) {
   entry_position_ = state.position;
   drag_anchor_ = state.carried_position.cols() == state.position.cols() ? &state.carried_position : &entry_position_;

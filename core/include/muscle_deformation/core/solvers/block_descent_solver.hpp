@@ -127,6 +127,14 @@ class BlockDescentSolver final : public SoftBodySolver {
   // whichever solver produced it: the common measure of how far a state is from the equilibrium. Does not change the
   // state (uses the contact query).
   double residualOf(const ParticleState& state);
+  // What one full sweep at `state` must at least move through memory and compute, counted from the data structures
+  // (the counting is in the .cpp): the floor a sweep's time is judged against (bytes over the machine's bandwidth,
+  // flops over its floating-point rate). Lists the contacts at `state` (uses the contact query).
+  struct SweepCost {
+    double bytes = 0;
+    double flops = 0;
+  };
+  SweepCost sweepCost(const ParticleState& state);
   const BlockDescentSettings& settings() const { return settings_; }
   int colourCount() const { return static_cast<int>(colour_begin_.size()) - 1; }
   int threadCount() const { return thread_count_; }
