@@ -122,6 +122,7 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   const SimulationSettings settings = node.pipeline.simulation;
   FrameStopping stopping = node.stream.stopping;
   stopping.sweeps.time_budget_ms = 0;
+  stopping.catch_up_sweeps = 0;  // the deep-contact rule alone (the jump's residual would also call for catch-up sweeps)
   const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
   struct Frames {
     FrameStats small_step, jump;
@@ -154,4 +155,50 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   EXPECT_EQ(guarded.jump.deep_contact_sweeps, guarded.jump.solver.iterations - 1);  // the frame says how many
   EXPECT_LE(guarded.jump.collision.max_penetration_muscle_bone_m, guarded.median_radius_m);
   EXPECT_TRUE(guarded.jump.finite);
+}
+
+TEST(Simulation, AWarmFrameWhoseResidualIsFarAboveTheStreamsGetsCatchUpSweepsWithinItsCap) {
+  // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget), deep-contact sweeps off: hip
+  // flexion in small steps sets the stream's typical residual; a 0.3 rad step then leaves a residual far above it.
+  const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  const CoreSettings node = nodeDefaultSettings();
+  const SimulationSettings settings = node.pipeline.simulation;
+  FrameStopping stopping = node.stream.stopping;
+  stopping.sweeps.time_budget_ms = 0;
+  stopping.deep_contact_sweeps = 0;
+  stopping.catch_up_residual_ratio = 3.0;
+  const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
+  struct Frames {
+    std::vector<FrameStats> smooth;
+    FrameStats jump;
+  };
+  const auto run = [&](int catch_up_sweeps) {
+    FrameStopping chosen = stopping;
+    chosen.catch_up_sweeps = catch_up_sweeps;
+    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings, node.pipeline.threads);
+    Frames frames;
+    solvePose(simulation, hipFlexion(0), StartMode::cold, chosen);
+    for (int k = 1; k <= 12; ++k)
+      frames.smooth.push_back(solvePose(simulation, hipFlexion(0.005 * k), StartMode::warm, chosen));
+    frames.jump = solvePose(simulation, hipFlexion(0.06 + 0.3), StartMode::warm, chosen);
+    return frames;
+  };
+  const Frames budget_only = run(0);
+  const Frames caught_up = run(4);
+  EXPECT_EQ(budget_only.jump.solver.iterations, 1);
+  EXPECT_EQ(budget_only.jump.catch_up_sweeps, 0);
+  // The smooth frames once the stream has a typical residual keep their budget.
+  for (std::size_t k = 6; k < caught_up.smooth.size(); ++k) {
+    EXPECT_EQ(caught_up.smooth[k].catch_up_sweeps, 0) << "smooth frame " << k;
+    EXPECT_EQ(caught_up.smooth[k].solver.residual, budget_only.smooth[k].solver.residual);
+  }
+  // The jump's residual after its one budgeted sweep is what the catch-up sees: the rule fires, within the cap, and the
+  // frame ends nearer its answer.
+  const double typical = budget_only.smooth.back().solver.residual;
+  ASSERT_GT(budget_only.jump.solver.residual, 3.0 * typical);
+  EXPECT_GT(caught_up.jump.catch_up_sweeps, 0);
+  EXPECT_LE(caught_up.jump.catch_up_sweeps, 4);
+  EXPECT_EQ(caught_up.jump.solver.iterations, 1 + caught_up.jump.catch_up_sweeps);  // the frame says how many
+  EXPECT_LT(caught_up.jump.solver.residual, budget_only.jump.solver.residual);
+  EXPECT_TRUE(caught_up.jump.finite);
 }

@@ -1,6 +1,7 @@
 #include "muscle_simulation.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <vector>
 
@@ -41,6 +42,9 @@ std::string validate(const FrameStopping& stopping) {
   if (const std::string problem = validate(stopping.sweeps); !problem.empty()) return problem;
   if (stopping.cold_start_iterations < 1) return "cold_start_iterations must be >= 1";
   if (stopping.deep_contact_sweeps < 0) return "deep_contact_sweeps must be >= 0";
+  if (stopping.catch_up_sweeps < 0) return "catch_up_sweeps must be >= 0";
+  if (!(stopping.catch_up_residual_ratio >= 1) || !std::isfinite(stopping.catch_up_residual_ratio))
+    return "catch_up_residual_ratio must be a finite number >= 1";
   return {};
 }
 
@@ -188,7 +192,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed
   // number of iterations instead (FrameStopping::cold_start_iterations).
   frame_transforms_ = transforms;
-  runSolver(transforms, mainSolveStopping(stats.warm_started, stopping), stopping, stats);
+  runSolver(transforms, mainSolveStopping(stats.warm_started, stopping), stopping, stats, false);
   finishFrame(transforms, drag, false, stats);
   return stats;
 }
@@ -203,14 +207,14 @@ FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
   // The same pose and the same anchor of the tissue drag (state_.carried_position as the frame set it): the answer
   // stays the frame's, and the sweeps continue from where they stopped.
   frame_transforms_ = previous_transforms_;
-  runSolver(previous_transforms_, stopping.sweeps, stopping, stats);
+  runSolver(previous_transforms_, stopping.sweeps, stopping, stats, true);
   const BoneTransforms transforms = previous_transforms_;
   finishFrame(transforms, solver_->dragsTissue(), true, stats);
   return stats;
 }
 
 void MuscleSimulation::runSolver(const BoneTransforms& transforms, const StoppingSettings& main,
-                                 const FrameStopping& stopping, FrameStats& stats) {
+                                 const FrameStopping& stopping, FrameStats& stats, bool refinement) {
   if (collision_ && solver_->solvesContacts()) {
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
@@ -229,6 +233,28 @@ void MuscleSimulation::runSolver(const BoneTransforms& transforms, const Stoppin
       addDeepContactSweep(solver_->solve(state_, one_sweep), stats.solver);
       ++stats.deep_contact_sweeps;
       stats.collision = collision_->measure(state_);
+    }
+    // A warm frame (not a refinement) whose residual after its budget lies far above the stream's typical one gets up
+    // to catch_up_sweeps more; the typical residual is taken before them, from the budgeted sweeps alone.
+    const bool residual_guard = deep_contact_guard && !refinement && measuresResidual() && stats.solver.iterations > 0 &&
+                                std::isfinite(stats.solver.residual) && stats.solver.residual > 0;
+    if (residual_guard) {
+      const double budget_residual = stats.solver.residual;
+      const double threshold =
+          has_typical_residual_ ? stopping.catch_up_residual_ratio * std::exp(typical_log_residual_) : 0.0;
+      for (int extra = 0; has_typical_residual_ && extra < stopping.catch_up_sweeps &&
+                          stats.solver.residual > threshold && !stats.solver.diverged && !stats.solver.cancelled &&
+                          !stats.solver.time_limit_reached;
+           ++extra) {
+        addDeepContactSweep(solver_->solve(state_, one_sweep), stats.solver);
+        ++stats.catch_up_sweeps;
+        stats.collision = collision_->measure(state_);
+      }
+      const double log_residual = std::log(budget_residual);
+      typical_log_residual_ = has_typical_residual_ ? (1 - kTypicalResidualWeight) * typical_log_residual_ +
+                                                          kTypicalResidualWeight * log_residual
+                                                    : log_residual;
+      has_typical_residual_ = true;
     }
   } else if (collision_) {
     collision_->setBoneTransforms(transforms);

@@ -64,7 +64,7 @@ class MuscleSimulation {
   StoppingSettings mainSolveStopping(bool warm, const FrameStopping& stopping) const;
   // The solver (with the collision stage's contacts or its hook) at `transforms`, then the deep-contact sweeps.
   void runSolver(const BoneTransforms& transforms, const StoppingSettings& main, const FrameStopping& stopping,
-                 FrameStats& stats);
+                 FrameStats& stats, bool refinement);
   // Finite check (with the pre-transform as the last resort) and what the next warm start continues; `refinement`: the
   // frame continued the last one (refine()).
   void finishFrame(const BoneTransforms& transforms, bool drag, bool refinement, FrameStats& stats);
@@ -80,6 +80,11 @@ class MuscleSimulation {
   BoneFields bone_fields_;
   // MassSpringSystem::medianCollisionRadius of the final model, once (FrameStopping::deep_contact_sweeps).
   double median_collision_radius_m_ = 0;
+  // The running mean of log(residual) after the budgeted sweeps of the warm frames so far (FrameStopping::
+  // catch_up_sweeps); unset until the first.
+  double typical_log_residual_ = 0;
+  bool has_typical_residual_ = false;
+  static constexpr double kTypicalResidualWeight = 0.05;  // of each new frame: about the last 20 frames (1/3 s at 60 Hz)
 
   std::unique_ptr<SkinnedVolume> volume_;  // keepVolume(); null without a volume term
   BoneTransforms frame_transforms_;        // the bones of the frame being solved (the volume term's skin reads them)

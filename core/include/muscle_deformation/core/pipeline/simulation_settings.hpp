@@ -65,6 +65,12 @@ struct FrameStopping {
   // jump does (thigh13, rest to 90 deg hip flexion in one frame: 1.71 mm after the one sweep its budget fits, 0.19 mm
   // after a second).
   int deep_contact_sweeps = 0;
+  // time_budget, warm frames of a solver that measures a force residual: sweeps a frame may take past its budget, one
+  // at a time, while its residual stays above catch_up_residual_ratio x the stream's typical residual after the
+  // budgeted sweeps (a running geometric mean over the warm frames before it), so that the frames of a fast motion get
+  // sweeps where their residual is and a smooth stream none. 0 = none.
+  int catch_up_sweeps = 0;
+  double catch_up_residual_ratio = 3.0;
 
   static FrameStopping of(const StoppingSettings& sweeps) {
     FrameStopping stopping;
@@ -85,6 +91,7 @@ struct FrameStats {
   // The solve left non-finite positions despite the solver's own recovery; the state is the rigid pre-transform.
   bool fell_back_to_pretransform = false;
   int deep_contact_sweeps = 0;  // sweeps taken past the budget for a deep bone contact (FrameStopping)
+  int catch_up_sweeps = 0;      // sweeps taken past the budget for a residual far above the stream's (FrameStopping)
 };
 
 }  // namespace muscle_deformation
