@@ -161,5 +161,23 @@ class RooflineTest(unittest.TestCase):
     def test_rows_without_a_sweep_measure_say_nothing(self):
         self.assertEqual(realtime_report.floor_lines([self._row()]), [])
 
+
+class SectionReplacementTest(unittest.TestCase):
+    def test_a_section_is_replaced_in_place_and_a_new_one_appended(self):
+        old = "# Benchmarks\n\nMachine: m.\n\n## A\n\nold a\n\n## B\n\nold b\n"
+        text = bench_report.replace_sections(old, [["## B", "", "new b", ""], ["## C", "", "new c", ""]],
+                                             "Regenerated separately: B, C.")
+        self.assertLess(text.index("## A"), text.index("new b"))
+        self.assertLess(text.index("new b"), text.index("## C"))
+        self.assertNotIn("old b", text)
+        self.assertIn("old a", text)
+        self.assertIn("Regenerated separately: B, C.", text.split("## A")[0])
+
+    def test_a_second_partial_run_replaces_the_first_note(self):
+        first = bench_report.replace_sections("# B\n\n## A\n\na\n", [["## A", "", "a1"]], "Regenerated separately: 1")
+        second = bench_report.replace_sections(first, [["## A", "", "a2"]], "Regenerated separately: 2")
+        self.assertNotIn("separately: 1", second)
+        self.assertEqual(second.count("## A"), 1)
+
 if __name__ == "__main__":
     unittest.main()

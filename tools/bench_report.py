@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """Writes docs/BENCHMARKS.md from the JSON files the benchmark programs leave in out/bench/.
 
-Usage: bench_report.py OUT_BENCH_DIR BENCHMARKS_MD
-Sections appear for the JSON files that exist; numbers are copied, never computed from assumptions."""
+Usage: bench_report.py OUT_BENCH_DIR BENCHMARKS_MD [--sections=realtime,stability,...]
+Sections appear for the JSON files that exist; numbers are copied, never computed from assumptions. With --sections
+only the named sections are made, each in place of the section of the same heading in BENCHMARKS_MD (appended if it has
+none), and the header says which were regenerated apart from the rest."""
 import datetime
 import json
 import os
@@ -370,59 +372,102 @@ def lengths_section(rows):
     return lines
 
 
+# Each section: its name for --sections, the JSON it is made from, and how.
+SECTIONS = [
+    ("realtime", "realtime.json", lambda rows, img_dir: realtime_report.realtime_section(rows, img_dir)),
+    ("paper_table", "paper_table.json", lambda rows, img_dir: accuracy_report.paper_table_section(rows)),
+    ("speed_vs_error", "speed_vs_error.json",
+     lambda rows, img_dir: accuracy_report.speed_error_section(rows, img_dir)[0]),
+    ("bone_proxy", "bone_proxy.json", lambda rows, img_dir: bone_proxy_section(rows)),
+    ("stability", "stability.json", lambda rows, img_dir: accuracy_report.stability_section(rows)),
+    ("economy", "economy.json", lambda rows, img_dir: accuracy_report.economy_section(rows)),
+    ("mss", "mss.json", lambda rows, img_dir: mss_section(rows)),
+    ("iteration", "iteration.json", lambda rows, img_dir: iteration_section(rows)),
+    ("gait", None, None),  # from out/demo/stats.csv
+    ("local_global", "local_global.json", lambda rows, img_dir: local_global_section(rows)),
+    ("fidelity", "fidelity.json", lambda rows, img_dir: fidelity_section(rows)),
+    ("lengths", "lengths.json", lambda rows, img_dir: lengths_section(rows)),
+    ("skinning", "skinning.json", lambda rows, img_dir: skinning_section(rows)),
+]
+
+
+def section_lines(name, out_dir, img_dir):
+    """The lines of one section, or None when what it is made from is not there."""
+    if name == "gait":
+        demo_stats = out_dir.parent / "demo" / "stats.csv"
+        return gait_section(demo_stats) if demo_stats.exists() else None
+    _, json_name, build = next(entry for entry in SECTIONS if entry[0] == name)
+    rows = load(out_dir, json_name)
+    return build(rows, img_dir) if rows else None
+
+
+def split_sections(text):
+    """The report's header lines and its sections as (heading, lines), in order."""
+    header, sections = [], []
+    for line in text.split("\n"):
+        if line.startswith("## "):
+            sections.append((line, [line]))
+        elif sections:
+            sections[-1][1].append(line)
+        else:
+            header.append(line)
+    return header, sections
+
+
+def replace_sections(text, new_sections, note):
+    """`text` with each section of `new_sections` (lists of lines starting with their heading) in place of the one with
+    the same heading, or appended when there is none; `note` goes below the header's machine line."""
+    header, sections = split_sections(text)
+    for lines in new_sections:
+        heading = lines[0]
+        for k, (existing, _) in enumerate(sections):
+            if existing == heading:
+                sections[k] = (heading, lines)
+                break
+        else:
+            sections.append((heading, lines))
+    header = [line for line in header if not line.startswith("Regenerated separately:")]
+    while header and header[-1] == "":
+        header.pop()
+    header += ["", note, ""]
+    return "\n".join(header + [line for _, lines in sections for line in lines])
+
+
 def main():
-    out_dir = pathlib.Path(sys.argv[1])
-    target = pathlib.Path(sys.argv[2])
+    arguments = [a for a in sys.argv[1:] if not a.startswith("--sections=")]
+    chosen = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("--sections=")]
+    out_dir = pathlib.Path(arguments[0])
+    target = pathlib.Path(arguments[1])
+    img_dir = target.parent / "img"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    if chosen:
+        # Only the named sections, from this run's JSON, in place of their old text: the rest keeps its own run.
+        names = chosen[0].split(",")
+        unknown = [n for n in names if n not in {entry[0] for entry in SECTIONS}]
+        if unknown:
+            sys.exit(f"bench_report.py: unknown section(s) {', '.join(unknown)}")
+        new_sections = []
+        for name in names:
+            lines = section_lines(name, out_dir, img_dir)
+            if lines is None:
+                sys.exit(f"bench_report.py: nothing in {out_dir} to make the {name} section from")
+            new_sections.append(lines)
+        headings = ", ".join(f"\"{lines[0][3:]}\"" for lines in new_sections)
+        note = (f"Regenerated separately: {headings} on {machine_description()}; the other sections come from the "
+                "full run named above, so compare numbers only within a section.")
+        target.write_text(replace_sections(target.read_text(), new_sections, note))
+        print(f"updated {', '.join(names)} in {target}")
+        return
     lines = ["# Benchmarks", "",
              "Regenerated by `make bench` (do not edit by hand). The machine is shared and noisy: numbers are "
              "medians of repeated runs within one run of `make bench`; ratios compare numbers from that same run.", "",
              f"Machine: {machine_description()}.", ""]
-    img_dir = target.parent / "img"
-    img_dir.mkdir(parents=True, exist_ok=True)
-    realtime = load(out_dir, "realtime.json")
-    if realtime:
-        lines += realtime_report.realtime_section(realtime, img_dir)
-    paper_table = load(out_dir, "paper_table.json")
-    if paper_table:
-        lines += accuracy_report.paper_table_section(paper_table)
-    speed_vs_error = load(out_dir, "speed_vs_error.json")
-    if speed_vs_error:
-        section, _ = accuracy_report.speed_error_section(speed_vs_error, img_dir)
-        lines += section
-    bone_proxy = load(out_dir, "bone_proxy.json")
-    if bone_proxy:
-        lines += bone_proxy_section(bone_proxy)
-    stability = load(out_dir, "stability.json")
-    if stability:
-        lines += accuracy_report.stability_section(stability)
-    economy = load(out_dir, "economy.json")
-    if economy:
-        lines += accuracy_report.economy_section(economy)
-    mss = load(out_dir, "mss.json")
-    if mss:
-        lines += mss_section(mss)
-    iteration = load(out_dir, "iteration.json")
-    if iteration:
-        lines += iteration_section(iteration)
-    demo_stats = out_dir.parent / "demo" / "stats.csv"
-    if demo_stats.exists():
-        lines += gait_section(demo_stats)
-    local_global = load(out_dir, "local_global.json")
-    if local_global:
-        lines += local_global_section(local_global)
-    fidelity = load(out_dir, "fidelity.json")
-    if fidelity:
-        lines += fidelity_section(fidelity)
-    lengths = load(out_dir, "lengths.json")
-    if lengths:
-        lines += lengths_section(lengths)
-    skinning = load(out_dir, "skinning.json")
-    if skinning:
-        lines += skinning_section(skinning)
-    extra = sorted(p.name for p in out_dir.glob("*.json")
-                   if p.name not in {"mss.json", "iteration.json", "skinning.json", "local_global.json", "paper_table.json",
-                                     "speed_vs_error.json", "stability.json", "economy.json", "realtime.json",
-                                     "bone_proxy.json", "fidelity.json", "lengths.json"})
+    for name, _, _ in SECTIONS:
+        section = section_lines(name, out_dir, img_dir)
+        if section:
+            lines += section
+    known = {entry[1] for entry in SECTIONS if entry[1]}
+    extra = sorted(p.name for p in out_dir.glob("*.json") if p.name not in known)
     if extra:
         lines += ["## Other results", "", "Raw numbers in `out/bench/`: " + ", ".join(extra) + ".", ""]
     target.parent.mkdir(parents=True, exist_ok=True)
