@@ -83,7 +83,7 @@ class PrepareSceneEndToEnd(unittest.TestCase):
                            "belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw)
         self.assertEqual(run.returncode, 1, run.stdout + run.stderr)
         self.assertIn("muscle 'broken' NOT prepared", run.stdout)
-        self.assertIn("the repair could not make it one", run.stdout)
+        self.assertIn("enclose no volume", run.stdout)
         self.assertIn("muscle 'belly': repaired", run.stdout)
         self.assertIn("1 of 2 muscles prepared", run.stdout)
         for name in ("scene.yaml", "report.md", "view.rviz", "meshes/muscles/belly.stl", "fibres/belly.vtk"):

@@ -185,7 +185,7 @@ TEST_F(ScenePreparationTest, AMuscleThatCannotBePreparedIsReportedWithTheReasonA
   ASSERT_EQ(scene.muscles.size(), 5u);
   EXPECT_EQ(scene.preparedCount(), 1);
   EXPECT_TRUE(scene.muscles[1].prepared()) << scene.muscles[1].refusal;
-  EXPECT_CONTAINS(scene.muscles[0].refusal, "the repair could not make it one");
+  EXPECT_CONTAINS(scene.muscles[0].refusal, "enclose no volume");
   EXPECT_CONTAINS(scene.muscles[2].refusal, "insertion link 'tibia_r' is not a link of the URDF");
   EXPECT_CONTAINS(scene.muscles[3].refusal, "'no_bone' has no <collision> mesh");
   EXPECT_CONTAINS(scene.muscles[4].refusal, "nowhere.stl");

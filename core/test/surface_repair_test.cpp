@@ -100,13 +100,15 @@ TEST(SurfaceRepair, ASegmentationLikeSurfaceBecomesClosedWithItsVolumeKept) {
   EXPECT_NEAR(md::enclosedVolume(repaired), volume, 0.01 * volume);
 }
 
-TEST(SurfaceRepair, WhatCannotBeRepairedIsRefusedNamingTheFileAndWhatWasLeft) {
+// Three flat triangles on one edge: no repair can make a surface of what encloses nothing.
+TEST(SurfaceRepair, WhatEnclosesNoVolumeIsRefusedNamingTheFileWhyAndWhatTheLocalRepairLeft) {
   md::SurfaceRepairReport report;
   const std::string message = md::testing::errorMessageOf<md::LoadError>(
       [&] { md::loadRepairedClosedSurface(data("nonmanifold.obj"), 1.0, report); });
   EXPECT_CONTAINS(message, "nonmanifold.obj");
   EXPECT_CONTAINS(message, "1 non-manifold edge");
-  EXPECT_CONTAINS(message, "the repair could not make it one");
+  EXPECT_CONTAINS(message, "cannot be made one");
+  EXPECT_CONTAINS(message, "enclose no volume");
   EXPECT_CONTAINS(message, "triangles on non-manifold edges removed: 3");
 }
 

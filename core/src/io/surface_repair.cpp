@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/io/surface_repair.hpp"
 
+#include "muscle_deformation/core/base/self_intersection.hpp"
 #include "muscle_deformation/core/io/mesh_io.hpp"
 
 #include "poly_data_conversion.hpp"
@@ -284,7 +285,8 @@ long orient(IndexedSurface& surface) {
 
 bool SurfaceRepairReport::changed() const {
   return welded_vertices || degenerate_triangles_removed || duplicate_triangles_removed ||
-         non_manifold_triangles_removed || hole_triangles_added || shell_triangles_dropped || triangles_flipped;
+         non_manifold_triangles_removed || hole_triangles_added || shell_triangles_dropped || triangles_flipped ||
+         level_set.has_value();
 }
 
 std::string SurfaceRepairReport::describe() const {
@@ -299,10 +301,12 @@ std::string SurfaceRepairReport::describe() const {
   add(shell_triangles_dropped, "triangles of loose pieces dropped:");
   add(hole_triangles_added, "triangles added to close holes:");
   add(triangles_flipped, "triangles flipped to a consistent outward winding:");
-  if (parts.empty()) return "nothing changed";
   std::string text;
   for (const std::string& part : parts) text += (text.empty() ? "" : ", ") + part;
-  return text;
+  if (level_set)
+    text = (text.empty() ? "the local repairs changed nothing" : "the local repairs (" + text + ")") + " left " +
+           left_by_local_repair + ", so the surface was " + level_set->describe();
+  return text.empty() ? "nothing changed" : text;
 }
 
 TriangleMesh repairSurface(const TriangleMesh& mesh, SurfaceRepairReport& report) {
@@ -323,15 +327,47 @@ TriangleMesh closedOrRepaired(const TriangleMesh& mesh, const std::string& sourc
                               std::string* defects) {
   report = SurfaceRepairReport{};
   const SurfaceTopologyReport found = checkSurfaceTopology(mesh);
-  if (defects) *defects = found.closedManifold() ? "" : found.describe();
-  if (found.closedManifold()) return mesh;  // a good surface is used exactly as stored
+  std::string found_text = found.closedManifold() ? "" : found.describe();
+  if (const SelfIntersectionReport crossings = findSelfIntersections(mesh); crossings.crosses())
+    found_text += (found_text.empty() ? "" : ", ") + crossings.describe();
+  if (defects) *defects = found_text;
+  if (found_text.empty()) return mesh;  // a good surface is used exactly as stored
+
   TriangleMesh repaired = repairSurface(mesh, report);
-  const SurfaceTopologyReport left = checkSurfaceTopology(repaired);
-  if (!left.closedManifold() || repaired.triangleCount() < 4)
-    throw LoadError(source + ": is not a closed, consistently oriented 2-manifold surface (" + found.describe() +
-                    ") and the repair could not make it one (" + report.describe() + "; left: " +
-                    (repaired.triangleCount() < 4 ? std::string("fewer than 4 triangles") : left.describe()) + ")");
-  return repaired;
+  std::string left;
+  if (repaired.triangleCount() < 4)
+    left = "fewer than 4 triangles";
+  else if (const SurfaceTopologyReport topology = checkSurfaceTopology(repaired); !topology.closedManifold())
+    left = topology.describe();
+  else if (const SelfIntersectionReport crossings = findSelfIntersections(repaired); crossings.crosses())
+    left = crossings.describe();
+  if (left.empty()) return repaired;
+
+  // What the local repair could not undo: the volume the triangles enclose decides. The local repair's result is
+  // closer to closed (holes filled, fins gone), so it is rebuilt unless nothing of it is left.
+  report.left_by_local_repair = left;
+  TriangleMesh from = repaired;
+  if (from.triangleCount() == 0) {  // the surface as given, without the triangles that name no vertex
+    IndexedSurface welded;
+    weld(mesh, welded);
+    removeDegenerate(welded);
+    from = toMesh(welded);
+  }
+  LevelSetRebuildReport rebuild;
+  TriangleMesh rebuilt;
+  try {
+    rebuilt = rebuildFromLevelSet(from, static_cast<long>(mesh.triangleCount()), rebuild);
+  } catch (const NoEnclosedVolumeError& e) {
+    const std::string local = report.describe();
+    throw LoadError(source + ": is not a closed, consistently oriented 2-manifold surface (" + found_text +
+                    ") and cannot be made one: " + e.what() + " (the local repair: " + local + "; it left: " + left +
+                    ")");
+  }
+  const SurfaceTopologyReport result = checkSurfaceTopology(rebuilt);
+  if (!result.closedManifold())  // the iso-surface of a level set is closed: this would be a bug, said as such
+    throw LoadError(source + ": the level-set rebuild of the surface left " + result.describe());
+  report.level_set = rebuild;
+  return rebuilt;
 }
 
 TriangleMesh loadRepairedClosedSurface(const std::string& path, double scale_to_metres, SurfaceRepairReport& report) {

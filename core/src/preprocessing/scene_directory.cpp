@@ -90,7 +90,8 @@ std::string musclesTable(const ScenePreparation& p) {
       r << "**no** (below) | | | | | | |\n";
       continue;
     }
-    r << "yes | " << (m.repair.changed() ? "repaired" : "closed as given") << " | " << fixed(m.volume_m3 * 1e6, 1)
+    r << "yes | " << (m.repair.level_set ? "rebuilt from a level set" : m.repair.changed() ? "repaired" : "closed as given")
+      << " | " << fixed(m.volume_m3 * 1e6, 1)
       << " | " << m.fibres.fibres.size() << " | " << (m.fibres.checks.passed() ? "passed" : "**failed**") << " | "
       << (m.fibres.patches.origin_from_bone ? "bone" : "axis end") << " / "
       << (m.fibres.patches.insertion_from_bone ? "bone" : "axis end") << " | ";
