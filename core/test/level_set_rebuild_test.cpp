@@ -94,6 +94,19 @@ TEST(LevelSetRebuild, AClosedSphereComesBackWithinHalfAPercentOfItsVolumeAndATen
   EXPECT_NEAR(static_cast<double>(report.triangles), 1280.0, 128.0);
 }
 
+TEST(LevelSetRebuild, AMillimetreSizedPartInMetresComesBackLikeALargeOne) {
+  // A 1 mm sphere 0.4 m from the origin (a small part of a scene in metres): voxels of a few micrometres, which OpenVDB
+  // refuses as a transform's scale, and coordinates thousands of voxels from the origin.
+  const md::TriangleMesh sphere = md::makeSphereMesh(Eigen::Vector3d(0.4, -0.2, 0.1), 0.001, 3);
+  md::LevelSetRebuildReport report;
+  const md::TriangleMesh rebuilt = md::rebuildFromLevelSet(sphere, sphere.triangleCount(), report);
+  EXPECT_LT(report.voxel_m, 1e-4);
+  EXPECT_TRUE(md::checkSurfaceTopology(rebuilt).closedManifold());
+  ASSERT_TRUE(report.volumeChange().has_value());
+  EXPECT_LT(std::abs(*report.volumeChange()), 1e-2);
+  EXPECT_LE(report.max_distance_to_input_m, report.voxel_m);
+}
+
 TEST(LevelSetRebuild, TheVoxelIsHalfTheMedianEdgeUnlessTheShapeIsThinnerThanFortyOfThem) {
   const md::TriangleMesh sphere = md::makeSphereMesh(Eigen::Vector3d::Zero(), 0.03, 3);
   EXPECT_NEAR(md::levelSetVoxelFor(sphere, 1280), 0.06 / 40, 1e-9);  // edges of about 4 mm: the 60 mm width decides

@@ -246,11 +246,16 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
                                 " triangles have no extent (every edge has zero length)");
 
   initialiseOpenVdbOnce();
+  // The grid is built in voxel units (a unit transform, the vertices divided by the voxel): OpenVDB refuses a transform
+  // whose scale it takes for zero ("Non-zero scale values required"), which a millimetre-sized part in metres reaches.
   std::vector<openvdb::Vec3s> points;
-  points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
-  for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
-    points.emplace_back(static_cast<float>(mesh.vertices(0, v)), static_cast<float>(mesh.vertices(1, v)),
-                        static_cast<float>(mesh.vertices(2, v)));
+  const auto scalePoints = [&](double voxel) {
+    points.clear();
+    points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
+    for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
+      points.emplace_back(static_cast<float>(mesh.vertices(0, v) / voxel), static_cast<float>(mesh.vertices(1, v) / voxel),
+                          static_cast<float>(mesh.vertices(2, v) / voxel));
+  };
   std::vector<openvdb::Vec3I> triangles;
   triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
   for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
@@ -263,11 +268,12 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
   double deepest_voxels = 0;
   for (int attempt = 0; attempt < 3; ++attempt) {
     if (attempt > 0) report.voxel_m *= 0.5;
-    const auto transform = openvdb::math::Transform::createLinearTransform(report.voxel_m);
+    scalePoints(report.voxel_m);
+    const auto transform = openvdb::math::Transform::createLinearTransform(1.0);
     grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*transform, points, triangles, kHalfBandVoxels);
     float deepest = 0;
     for (auto value = grid->tree().cbeginValueAll(); value; ++value) deepest = std::min(deepest, *value);
-    deepest_voxels = -deepest / report.voxel_m;
+    deepest_voxels = -deepest;  // in voxels: the grid's unit
     if (deepest_voxels > kMinDepthVoxels) break;
   }
   if (!(deepest_voxels > kMinDepthVoxels))
@@ -277,6 +283,7 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
                                 " mm (a sheet, a fin, or an open surface whose outside reaches in)");
 
   TriangleMesh surface = isoSurface(*grid);
+  surface.vertices *= report.voxel_m;  // back from voxel units to metres
   if (surface.triangleCount() == 0)
     throw NoEnclosedVolumeError("its " + std::to_string(mesh.triangleCount()) + " triangles enclose no volume at a " +
                                 fixed(report.voxel_m * 1e3, 3) + " mm voxel: the level set of their distance field "
