@@ -37,6 +37,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
       private_node_(private_node),
       settings_(readNodeSettings(private_node_, packageRoot())),
       pose_diagnostics_(settings_.stream.expected_rate_hz),
+      sweep_budget_(settings_.stream.expected_rate_hz > 0 ? 1000.0 / settings_.stream.expected_rate_hz : 0.0),
       tf_buffer_(ros::Duration(30.0)),
       tf_listener_(tf_buffer_, node_),
       diagnostics_(node_, private_node_) {
@@ -265,6 +266,9 @@ void MuscleDeformationNode::publish(const StreamStep& step, const ros::Time& sta
     ROS_WARN_STREAM_THROTTLE(2.0, at << "diverged and was re-run " << solve.divergence_recoveries
                                      << " time(s) with a halved time step, now " << solve.time_step_s << " s");
   if (!frame.stats.finite) ROS_ERROR_STREAM_THROTTLE(2.0, at << "gave non-finite positions; next frame starts cold");
+  if (step.outcome == StreamOutcome::solved)
+    if (const std::string slow = sweep_budget_.add(frame.stats, frame.stats.warm_started); !slow.empty())
+      ROS_WARN_STREAM("muscle_deformation: " << slow);
   std_msgs::Header header;
   header.stamp = stamp;
   header.frame_id = settings_.fixed_frame;

@@ -13,6 +13,7 @@
 
 #include "muscle_deformation/core/pipeline/single_pose_session.hpp"
 #include "muscle_deformation/core/pipeline/stream_session.hpp"
+#include "muscle_deformation/core/pipeline/sweep_budget_check.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/node/parameters.hpp"
 #include "muscle_deformation/node/pose_diagnostics.hpp"
@@ -69,6 +70,7 @@ class MuscleDeformationNode {
   std::unique_ptr<StreamSession> stream_;  // the worker's only
   std::unique_ptr<TfBoneLookup> bone_lookup_;
   PoseDiagnostics pose_diagnostics_;
+  SweepBudgetCheck sweep_budget_;  // says once when one sweep does not fit between two poses
 
   // Service: its own queue and threads. One call solves at a time (service_mutex_); up to ~service_max_queued wait
   // for it, further calls are refused at once.
