@@ -214,10 +214,10 @@ void record(bench::JsonRecords& records, const std::string& scene, const std::st
   records.add("predict_start", drag && settings.prediction.predict_start ? 1.0 : 0.0);
   records.add("node_default", config.node_default ? 1.0 : 0.0);
   records.add("particles", static_cast<double>(particles));
+  // Threads 0 = every core (as the node's default); kThreadsMeasured also sweeps on every core when it pays.
+  const bench::MachineFloor& floor = machineFloor(config.threads);
   double roofline_ratio = 0;
   if (s.sweep_ms_median > 0) {
-    // Threads 0 = every core (as the node's default); kThreadsMeasured also sweeps on every core when it pays.
-    const bench::MachineFloor& floor = machineFloor(config.threads);
     roofline_ratio = s.sweep_ms_median / floor.floorMilliseconds(s.sweep_bytes_median, s.sweep_flops_median);
     records.add("sweep_ms", s.sweep_ms_median);
     records.add("sweep_bytes", s.sweep_bytes_median);
@@ -231,8 +231,7 @@ void record(bench::JsonRecords& records, const std::string& scene, const std::st
   if (roofline_ratio > 0)
     std::printf("[%6.1f s]   sweep %.2f ms median: %.2f MB, %.1f Mflop; machine on %d threads %.1f GB/s, %.1f Gflop/s: "
                 "%.1fx its floor\n", elapsedSeconds(), s.sweep_ms_median, 1e-6 * s.sweep_bytes_median,
-                1e-6 * s.sweep_flops_median, machineFloor(config.threads).threads,
-                machineFloor(config.threads).bandwidth_gbs, machineFloor(config.threads).gflops, roofline_ratio);
+                1e-6 * s.sweep_flops_median, floor.threads, floor.bandwidth_gbs, floor.gflops, roofline_ratio);
   std::printf("[%6.1f s] %-7s %-6s %-44s threads %d: frame %6.1f ms median, %6.1f max; RMS to reference %.3f mean, "
               "%.3f max mm; bone penetration %.2f mm; residual %.2e; %.1f iterations%s\n",
               elapsedSeconds(), scene.c_str(), mode.c_str(), config.label.c_str(), config.threads, s.frame_ms_median,

@@ -40,6 +40,28 @@ std::vector<Bone> grazingBones() {
           {1, "base", makeBoxMesh({-0.06, -0.06, -0.03}, {0.06, 0.06, -0.001}, 0.005)}};
 }
 
+// The bundled thigh muscles (loaded once for the tests that need them) at the node's settings, each frame one sweep
+// (a zero budget) and no sweeps past it unless a test allows them.
+struct ThighAtNodeSettings {
+  const BundledScene& thigh;
+  CoreSettings node = nodeDefaultSettings();
+  FrameStopping oneSweep() const {
+    FrameStopping stopping = node.stream.stopping;
+    stopping.sweeps.time_budget_ms = 0;
+    stopping.deep_contact_sweeps = 0;
+    stopping.catch_up_sweeps = 0;
+    return stopping;
+  }
+  Pose hipFlexion(double angle_rad) const { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); }
+  MuscleSimulation simulation() const {
+    return MuscleSimulation(thigh.scene.muscles, thigh.scene.bones, node.pipeline.simulation, node.pipeline.threads);
+  }
+};
+ThighAtNodeSettings thighAtNodeSettings() {
+  static const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  return {thigh};
+}
+
 }  // namespace
 
 TEST(RestOverlaps, TouchingMusclesAndBonesDoNotDeformAtRest) {
@@ -117,13 +139,10 @@ TEST(Simulation, ANonFinitePoseIsRejected) {
 TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSweepsPastTheBudget) {
   // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget): a warm jump from rest to 90 deg
   // hip flexion leaves particle centres in the pelvis after that sweep; a small step leaves none.
-  const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
-  const CoreSettings node = nodeDefaultSettings();
-  const SimulationSettings settings = node.pipeline.simulation;
-  FrameStopping stopping = node.stream.stopping;
-  stopping.sweeps.time_budget_ms = 0;
-  stopping.catch_up_sweeps = 0;  // the deep-contact rule alone (the jump's residual would also call for catch-up sweeps)
-  const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
+  // Catch-up sweeps stay off: the deep-contact rule alone (the jump's residual would also call for them).
+  const ThighAtNodeSettings scene = thighAtNodeSettings();
+  const FrameStopping stopping = scene.oneSweep();
+  const auto hipFlexion = [&](double angle_rad) { return scene.hipFlexion(angle_rad); };
   struct Frames {
     FrameStats small_step, jump;
     double median_radius_m = 0;
@@ -131,7 +150,7 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   const auto run = [&](int deep_contact_sweeps) {
     FrameStopping chosen = stopping;
     chosen.deep_contact_sweeps = deep_contact_sweeps;
-    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings, node.pipeline.threads);
+    MuscleSimulation simulation = scene.simulation();
     Frames frames;
     frames.median_radius_m = simulation.system().medianCollisionRadius();
     solvePose(simulation, hipFlexion(0), StartMode::cold, chosen);
@@ -160,14 +179,10 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
 TEST(Simulation, AWarmFrameWhoseResidualIsFarAboveTheStreamsGetsCatchUpSweepsWithinItsCap) {
   // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget), deep-contact sweeps off: hip
   // flexion in small steps sets the stream's typical residual; a 0.3 rad step then leaves a residual far above it.
-  const BundledScene thigh = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
-  const CoreSettings node = nodeDefaultSettings();
-  const SimulationSettings settings = node.pipeline.simulation;
-  FrameStopping stopping = node.stream.stopping;
-  stopping.sweeps.time_budget_ms = 0;
-  stopping.deep_contact_sweeps = 0;
+  const ThighAtNodeSettings scene = thighAtNodeSettings();
+  FrameStopping stopping = scene.oneSweep();
   stopping.catch_up_residual_ratio = 3.0;
-  const auto hipFlexion = [&](double angle_rad) { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); };
+  const auto hipFlexion = [&](double angle_rad) { return scene.hipFlexion(angle_rad); };
   struct Frames {
     std::vector<FrameStats> smooth;
     FrameStats jump;
@@ -175,7 +190,7 @@ TEST(Simulation, AWarmFrameWhoseResidualIsFarAboveTheStreamsGetsCatchUpSweepsWit
   const auto run = [&](int catch_up_sweeps) {
     FrameStopping chosen = stopping;
     chosen.catch_up_sweeps = catch_up_sweeps;
-    MuscleSimulation simulation(thigh.scene.muscles, thigh.scene.bones, settings, node.pipeline.threads);
+    MuscleSimulation simulation = scene.simulation();
     Frames frames;
     solvePose(simulation, hipFlexion(0), StartMode::cold, chosen);
     for (int k = 1; k <= 12; ++k)

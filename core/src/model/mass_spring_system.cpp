@@ -37,4 +37,22 @@ std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, con
   return fibres;
 }
 
+Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
+  // Particles of one fibre are stored consecutively, in order from the fibre start (as fibrePolylines reads them).
+  const Eigen::Index n = system.particleCount();
+  const auto same_fibre = [&](Eigen::Index i, Eigen::Index j) {
+    return j >= 0 && j < n && system.fibre_of[static_cast<std::size_t>(i)] == system.fibre_of[static_cast<std::size_t>(j)] &&
+           system.muscle_of[static_cast<std::size_t>(i)] == system.muscle_of[static_cast<std::size_t>(j)];
+  };
+  Eigen::Matrix3Xd direction = Eigen::Matrix3Xd::Zero(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) continue;
+    const Eigen::Index next = same_fibre(i, i + 1) ? i + 1 : i, previous = same_fibre(i, i - 1) ? i - 1 : i;
+    const Eigen::Vector3d along = position.col(next) - position.col(previous);
+    const double length = along.norm();
+    if (length > 0) direction.col(i) = along / length;
+  }
+  return direction;
+}
+
 }  // namespace muscle_deformation

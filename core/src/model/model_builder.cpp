@@ -300,19 +300,8 @@ struct PendingTendon {
 // along its fibres, as muscle in the body is, so that when a joint lets its tendon go it shortens instead of going
 // slack. Stiffness stays that of the segmented length. Tendons and springs of tendon anchors are left as they are.
 void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
-  const Eigen::Index n = system.particleCount();
   const auto on_fibre = [&](Eigen::Index i) { return system.fibre_of[static_cast<std::size_t>(i)] != kTendonAnchor; };
-  const auto same_fibre = [&](Eigen::Index i, Eigen::Index j) {
-    return j >= 0 && j < n && system.fibre_of[static_cast<std::size_t>(i)] == system.fibre_of[static_cast<std::size_t>(j)] &&
-           system.muscle_of[static_cast<std::size_t>(i)] == system.muscle_of[static_cast<std::size_t>(j)];
-  };
-  Eigen::Matrix3Xd direction = Eigen::Matrix3Xd::Zero(3, n);
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (!on_fibre(i)) continue;
-    const Eigen::Index next = same_fibre(i, i + 1) ? i + 1 : i, previous = same_fibre(i, i - 1) ? i - 1 : i;
-    const Eigen::Vector3d along = system.rest_position.col(next) - system.rest_position.col(previous);
-    if (along.norm() > 0) direction.col(i) = along.normalized();
-  }
+  const Eigen::Matrix3Xd direction = fibreDirections(system, system.rest_position);
   for (std::size_t s = 0; s < system.springs.size(); ++s) {
     const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
     if (!on_fibre(a) || !on_fibre(b)) continue;

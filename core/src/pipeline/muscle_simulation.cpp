@@ -10,7 +10,7 @@ namespace muscle_deformation {
 namespace {
 
 // Adds one sweep solved past the frame's budget to the frame's statistics: its cost and the state it ended in.
-void addDeepContactSweep(const SolveStats& sweep, SolveStats& frame) {
+void addSweepPastBudget(const SolveStats& sweep, SolveStats& frame) {
   frame.iterations += sweep.iterations;
   frame.mss_ms += sweep.mss_ms;
   frame.collision_ms += sweep.collision_ms;
@@ -220,35 +220,37 @@ void MuscleSimulation::runSolver(const BoneTransforms& transforms, const Stoppin
     collision_->resetTiming();
     stats.solver = solver_->solve(state_, main);
     stats.collision = collision_->measure(state_);
-    // A warm frame under a time budget whose sweeps left a particle's centre in a bone (a jump, not a smooth stream)
-    // gets up to deep_contact_sweeps more, one at a time, each from where the last ended, towards the same answer.
-    const bool deep_contact_guard = stats.warm_started && main.rule == StoppingRule::time_budget;
     StoppingSettings one_sweep = main;
     one_sweep.rule = StoppingRule::iterations;
     one_sweep.max_iterations = 1;
-    for (int extra = 0; deep_contact_guard && extra < stopping.deep_contact_sweeps && median_collision_radius_m_ > 0 &&
-                        stats.collision.max_penetration_muscle_bone_m > median_collision_radius_m_ &&
-                        !stats.solver.diverged && !stats.solver.cancelled && !stats.solver.time_limit_reached;
-         ++extra) {
-      addDeepContactSweep(solver_->solve(state_, one_sweep), stats.solver);
-      ++stats.deep_contact_sweeps;
-      stats.collision = collision_->measure(state_);
-    }
-    // A warm frame (not a refinement) whose residual after its budget lies far above the stream's typical one gets up
-    // to catch_up_sweeps more; the typical residual is taken before them, from the budgeted sweeps alone.
-    const bool residual_guard = deep_contact_guard && !refinement && measuresResidual() && stats.solver.iterations > 0 &&
-                                std::isfinite(stats.solver.residual) && stats.solver.residual > 0;
-    if (residual_guard) {
-      const double budget_residual = stats.solver.residual;
-      const double threshold =
-          has_typical_residual_ ? stopping.catch_up_residual_ratio * std::exp(typical_log_residual_) : 0.0;
-      for (int extra = 0; has_typical_residual_ && extra < stopping.catch_up_sweeps &&
-                          stats.solver.residual > threshold && !stats.solver.diverged && !stats.solver.cancelled &&
+    // Up to `cap` single sweeps past the budget while `needed()` holds and the solve is sound, each from where the
+    // last ended, towards the same answer; `count` says how many the frame took.
+    const auto sweepPastBudget = [&](int cap, const auto& needed, int& count) {
+      for (int extra = 0; extra < cap && needed() && !stats.solver.diverged && !stats.solver.cancelled &&
                           !stats.solver.time_limit_reached;
            ++extra) {
-        addDeepContactSweep(solver_->solve(state_, one_sweep), stats.solver);
-        ++stats.catch_up_sweeps;
+        addSweepPastBudget(solver_->solve(state_, one_sweep), stats.solver);
+        ++count;
         stats.collision = collision_->measure(state_);
+      }
+    };
+    // A warm frame under a time budget whose sweeps left a particle's centre in a bone (a jump, not a smooth stream)
+    // gets up to deep_contact_sweeps more.
+    const bool past_budget_allowed = stats.warm_started && main.rule == StoppingRule::time_budget;
+    if (past_budget_allowed && median_collision_radius_m_ > 0)
+      sweepPastBudget(
+          stopping.deep_contact_sweeps,
+          [&] { return stats.collision.max_penetration_muscle_bone_m > median_collision_radius_m_; },
+          stats.deep_contact_sweeps);
+    // A warm frame (not a refinement) whose residual after its budget lies far above the stream's typical one gets up
+    // to catch_up_sweeps more; the typical residual is taken before them, from the budgeted sweeps alone.
+    if (past_budget_allowed && !refinement && measuresResidual() && stats.solver.iterations > 0 &&
+        std::isfinite(stats.solver.residual) && stats.solver.residual > 0) {
+      const double budget_residual = stats.solver.residual;
+      if (has_typical_residual_) {
+        const double threshold = stopping.catch_up_residual_ratio * std::exp(typical_log_residual_);
+        sweepPastBudget(
+            stopping.catch_up_sweeps, [&] { return stats.solver.residual > threshold; }, stats.catch_up_sweeps);
       }
       const double log_residual = std::log(budget_residual);
       typical_log_residual_ = has_typical_residual_ ? (1 - kTypicalResidualWeight) * typical_log_residual_ +

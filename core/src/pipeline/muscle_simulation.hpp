@@ -62,7 +62,8 @@ class MuscleSimulation {
  private:
   // The solver's rule for the frame's main solve: a cold start under a time budget runs a fixed number instead.
   StoppingSettings mainSolveStopping(bool warm, const FrameStopping& stopping) const;
-  // The solver (with the collision stage's contacts or its hook) at `transforms`, then the deep-contact sweeps.
+  // The solver (with the collision stage's contacts or its hook) at `transforms`, then the sweeps past the budget
+  // (deep contact; catch-up, not for a `refinement`).
   void runSolver(const BoneTransforms& transforms, const StoppingSettings& main, const FrameStopping& stopping,
                  FrameStats& stats, bool refinement);
   // Finite check (with the pre-transform as the last resort) and what the next warm start continues; `refinement`: the

@@ -4,9 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <map>
 #include <stdexcept>
-#include <tuple>
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -72,11 +70,15 @@ struct Block {
 inline void addDrag(double w, double along, const Eigen::Vector3d& t, const Eigen::Vector3d& x,
                     const Eigen::Vector3d& carried, Block& block) {
   const Eigen::Vector3d pull = carried - x;
-  const double cut = w * (1.0 - along) * t.dot(pull);
-  block.fx += w * pull.x() - cut * t.x();
-  block.fy += w * pull.y() - cut * t.y();
-  block.fz += w * pull.z() - cut * t.z();
+  block.fx += w * pull.x();
+  block.fy += w * pull.y();
+  block.fz += w * pull.z();
   block.addIsotropic(w);
+  if (along >= 1.0) return;  // isotropic: nothing taken off along the fibre (the sweep's common case)
+  const double cut = w * (1.0 - along) * t.dot(pull);
+  block.fx -= cut * t.x();
+  block.fy -= cut * t.y();
+  block.fz -= cut * t.z();
   block.addOuter(-w * (1.0 - along), t.x(), t.y(), t.z());
 }
 
@@ -268,24 +270,6 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   }
   for (Eigen::Index i = 0; i < n; ++i)
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
-  // Neighbours along each fibre (muscle, fibre, sample), whatever order the particles were stored in.
-  fibre_previous_.assign(static_cast<std::size_t>(n), -1);
-  fibre_next_.assign(static_cast<std::size_t>(n), -1);
-  if (system_.fibre_of.size() == static_cast<std::size_t>(n) && system_.sample_of.size() == static_cast<std::size_t>(n) &&
-      system_.muscle_of.size() == static_cast<std::size_t>(n)) {
-    std::map<std::tuple<std::int32_t, std::int32_t, std::int32_t>, std::int32_t> sample_index;
-    for (Eigen::Index i = 0; i < n; ++i) {
-      const std::size_t u = static_cast<std::size_t>(i);
-      if (system_.fibre_of[u] != kTendonAnchor)
-        sample_index[{system_.muscle_of[u], system_.fibre_of[u], system_.sample_of[u]}] = static_cast<std::int32_t>(i);
-    }
-    for (const auto& [key, index] : sample_index) {
-      const auto next = sample_index.find({std::get<0>(key), std::get<1>(key), std::get<2>(key) + 1});
-      if (next == sample_index.end()) continue;
-      fibre_next_[static_cast<std::size_t>(index)] = next->second;
-      fibre_previous_[static_cast<std::size_t>(next->second)] = index;
-    }
-  }
   buildColouring();
   updateDragWeights();
   // Springs repacked in visiting order: a sweep then reads them front to back, instead of jumping through the
@@ -405,15 +389,7 @@ void BlockDescentSolver::updateDragWeights() {
 }
 
 void BlockDescentSolver::updateDragDirections(const Eigen::Matrix3Xd& anchor) {
-  if (!anisotropicDrag()) return;
-  drag_direction_.setZero(3, system_.particleCount());
-  for (const std::int32_t p : free_particles_) {
-    const std::int32_t before = fibre_previous_[static_cast<std::size_t>(p)], after = fibre_next_[static_cast<std::size_t>(p)];
-    if (before < 0 && after < 0) continue;
-    const Eigen::Vector3d along = anchor.col(after >= 0 ? after : p) - anchor.col(before >= 0 ? before : p);
-    const double length = along.norm();
-    if (length > 0) drag_direction_.col(p) = along / length;
-  }
+  if (anisotropicDrag()) drag_direction_ = fibreDirections(system_, anchor);
 }
 
 double BlockDescentSolver::dragEnergy(std::int32_t p, const Eigen::Vector3d& x, const Eigen::Vector3d& carried) const {
@@ -577,8 +553,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const double drag = drag_weight_[p];
       const double drag_along = settings_.drag_along_fibre;
       const Eigen::Vector3d carried = drag_anchor_->col(p);
-      const Eigen::Vector3d fibre_direction =
-          anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero();
+      const Eigen::Vector3d fibre_direction = dragDirection(p);
       // The muscle's volume term: V is linear in this particle's position (volume_term.hpp), V = V_now + g . (x - start).
       const std::int32_t muscle = system_.muscle_of[static_cast<std::size_t>(p)];
       const bool volume_on = volume_.active() && volume_.stiffness[static_cast<std::size_t>(muscle)] > 0 &&
@@ -716,8 +691,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       addContact(Eigen::Vector3d(position.col(p)), current, pair_kc, 1.0, block);
     }
     if (with_drag)
-      addDrag(drag_weight_[p], settings_.drag_along_fibre,
-              anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero(), position.col(p),
+      addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), position.col(p),
               state.carried_position.col(p), block);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     sum += block.forceSquared();
@@ -737,7 +711,8 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
 // - flops: one Newton step per particle (a particle with contacts may take up to contact_newton_steps and halve them):
 //   46 per spring (addSpring: the difference 3, squared length 5, square root and inverse 2, pull 3, force 6,
 //   transverse share 1, isotropic part 4, outer product 4 + 18), 42 per contact entry (its depth 13 at the start and
-//   at the end of the step, the push 7, the outer product 22; counted once), 24 for the drag (30 along a fibre), 45
+//   at the end of the step, the push 7, the outer product 22; counted once), 12 for the drag (46 along a fibre: the share
+//   taken off along it 8, its force 6, its outer product 20), 45
 //   for the 3 x 3 solve by cofactors, 5 for the residual and 9 for the step's length and update; the volume term's
 //   share is not counted.
 BlockDescentSolver::SweepCost BlockDescentSolver::sweepCost(const ParticleState& state) {
@@ -753,7 +728,7 @@ BlockDescentSolver::SweepCost BlockDescentSolver::sweepCost(const ParticleState&
   SweepCost cost;
   cost.bytes = free_count * per_particle_bytes + springs * sizeof(NeighbourSpring) +
                contacts * sizeof(ContactEntry) + fixed_count * kVector;
-  const double drag_flops = anisotropicDrag() ? 30 : 24;
+  const double drag_flops = anisotropicDrag() ? 46 : 12;
   cost.flops = 46 * springs + 42 * contacts + free_count * (drag_flops + 45 + 5 + 9);
   return cost;
 }
@@ -829,9 +804,7 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
       addContact(x, atPositions(entry, position),
                  entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
     }
-    addDrag(drag_weight_[p], settings_.drag_along_fibre,
-            anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero(), x,
-            drag_anchor_->col(p), block);
+    addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), block);
     block.addIsotropic(regularisation_[p]);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     force.col(p) = Eigen::Vector3d(block.fx, block.fy, block.fz);

@@ -82,4 +82,8 @@ struct ParticleState {
 // anchors left out.
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
 
+// The unit direction of each particle's fibre at `position`: from the particle before it on its fibre to the one after
+// it (one-sided at a fibre's ends); zero for tendon anchors and for a fibre of one particle.
+Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
+
 }  // namespace muscle_deformation

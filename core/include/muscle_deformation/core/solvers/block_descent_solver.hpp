@@ -229,13 +229,16 @@ class BlockDescentSolver final : public SoftBodySolver {
   Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
   double frame_interval_s_ = kNominalFrameIntervalS;
   const Eigen::Matrix3Xd* drag_anchor_ = nullptr;  // during a solve: where the tissue carries each particle
-  // Each particle's neighbours along its fibre (-1: none), and the unit fibre direction at the drag anchor (zero where
-  // the particle has no neighbour, or the drag acts alike in every direction).
-  std::vector<std::int32_t> fibre_previous_, fibre_next_;
+  // The unit fibre direction of each particle at the drag anchor (fibreDirections), set only while the drag is weaker
+  // along the fibre than across it.
   Eigen::Matrix3Xd drag_direction_;
   bool anisotropicDrag() const { return settings_.drag_along_fibre < 1.0; }
   // drag_direction_ from the fibres at `anchor` (nothing when the drag is isotropic).
   void updateDragDirections(const Eigen::Matrix3Xd& anchor);
+  // Particle p's fibre direction for the drag: zero (every direction alike) when the drag is isotropic.
+  Eigen::Vector3d dragDirection(std::int32_t p) const {
+    return anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero();
+  }
   // The drag's energy 1/2 (x - c)^T D (x - c) of particle p at x with anchor c.
   double dragEnergy(std::int32_t p, const Eigen::Vector3d& x, const Eigen::Vector3d& carried) const;
   Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m             // per particle, N/m: keeps every 3 x 3 block invertible
