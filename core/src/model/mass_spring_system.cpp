@@ -45,6 +45,10 @@ Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Ma
            system.muscle_of[static_cast<std::size_t>(i)] == system.muscle_of[static_cast<std::size_t>(j)];
   };
   Eigen::Matrix3Xd direction = Eigen::Matrix3Xd::Zero(3, n);
+  // A system without fibre labels (hand-built) has no fibre direction anywhere.
+  if (system.fibre_of.size() != static_cast<std::size_t>(n) || system.muscle_of.size() != static_cast<std::size_t>(n) ||
+      position.cols() != n)
+    return direction;
   for (Eigen::Index i = 0; i < n; ++i) {
     if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) continue;
     const Eigen::Index next = same_fibre(i, i + 1) ? i + 1 : i, previous = same_fibre(i, i - 1) ? i - 1 : i;

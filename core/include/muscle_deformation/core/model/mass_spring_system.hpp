@@ -83,7 +83,8 @@ struct ParticleState {
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
 
 // The unit direction of each particle's fibre at `position`: from the particle before it on its fibre to the one after
-// it (one-sided at a fibre's ends); zero for tendon anchors and for a fibre of one particle.
+// it (one-sided at a fibre's ends); zero for tendon anchors, for a fibre of one particle, and everywhere when the
+// system has no fibre labels or `position` is not one column per particle.
 Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
 
 }  // namespace muscle_deformation

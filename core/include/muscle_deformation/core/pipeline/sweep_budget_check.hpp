@@ -2,7 +2,7 @@
 // one sweep, so on a machine too slow for it every frame overruns the pose period and the stream drops the poses that
 // arrive meanwhile (the newest is solved next). The user should hear that once, with the measured figures and what to
 // change, not find it in a rate diagnostic. The lighter setting it names was measured on the bundled 26 muscles, the
-// 1-cycle gait at one sweep a frame, 2026-11-26: particles_per_fibre 10 builds 19,802 particles and 179,847 springs
+// 1-cycle gait at one sweep a frame, 2026-11-26, Release, a shared 2-core AMD EPYC VM: particles_per_fibre 10 builds 19,802 particles and 179,847 springs
 // against 36,443 and 350,043 at 20, and takes 10.6-10.7 ms per sweep against 19.5-20.4 ms (two runs each). What it
 // costs in shape against a finer model is not measured yet.
 #pragma once
