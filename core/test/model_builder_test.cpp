@@ -81,6 +81,41 @@ TEST(ModelBuilder, BuildsParticlesForEveryFibre) {
   EXPECT_GT(report.muscles[0].volume_m3, 0);
 }
 
+TEST(ModelBuilder, AMuscleSamplesItsFibresAtItsOwnResolution) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles.push_back(makeSpindleMuscle("second", {0.03, 0, 0}, {0.03, 0, 0.2}, 0.01, 1.0, 4, 30));
+  scene.muscles[1].particles_per_fibre = 4;  // the first keeps the model's 10
+  ModelSettings settings = smallSettings();
+  settings.tendons = false;
+  ModelBuildReport report;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, settings, &report);
+  ASSERT_EQ(report.muscles.size(), 2u);
+  EXPECT_EQ(report.muscles[0].particles, 16 * 10);
+  EXPECT_EQ(report.muscles[1].particles, 16 * 4);
+  // Each muscle's fibre ends are its own last samples: the second's sample 3 is fixed to the upper plate.
+  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+    const int last = system.muscle_of[static_cast<std::size_t>(i)] == 0 ? 9 : 3;
+    if (system.sample_of[i] == last) {
+      EXPECT_TRUE(system.is_fixed[i]) << i;
+      EXPECT_EQ(system.fixed_bone[i], 1) << i;
+    } else if (system.sample_of[i] != 0) {
+      EXPECT_FALSE(system.is_fixed[i]) << i;
+    }
+  }
+}
+
+TEST(ModelBuilder, RefusesAMuscleResolutionBelowTwoParticlesPerFibre) {
+  SmallScene scene = spindleBetweenPlates();
+  scene.muscles[0].particles_per_fibre = 1;
+  try {
+    buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+    FAIL() << "a muscle with one particle per fibre was accepted";
+  } catch (const ModelError& error) {
+    EXPECT_NE(std::string(error.what()).find("spindle"), std::string::npos) << error.what();
+    EXPECT_NE(std::string(error.what()).find("particles_per_fibre 1"), std::string::npos) << error.what();
+  }
+}
+
 TEST(ModelBuilder, FibreEndsAreFixedToTheNearestBone) {
   const SmallScene scene = spindleBetweenPlates();
   ModelSettings settings = smallSettings();

@@ -250,6 +250,32 @@ TEST(Scene, MalformedValuesAndYamlNameTheLine) {
   EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([] { md::loadSceneDescription("/nonexistent/scene.yaml"); }), "/nonexistent/scene.yaml");
 }
 
+TEST(Scene, AMuscleMayGiveItsOwnParticlesPerFibre) {
+  const std::string path = writeTemp("own_resolution.yaml",
+                                     "urdf: r.urdf\nframe: base\nmuscles:\n"
+                                     "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
+                                     "   particles_per_fibre: 12}\n"
+                                     "- {name: c, surface: c.stl, fibres: c.vtk, origin_bone: b, insertion_bone: b}\n");
+  const md::SceneDescription scene = md::loadSceneDescription(path);
+  ASSERT_EQ(scene.muscles.size(), 2u);
+  EXPECT_EQ(scene.muscles[0].particles_per_fibre, 12);
+  EXPECT_EQ(scene.muscles[1].particles_per_fibre, 0);  // the model's
+
+  const std::string one = writeTemp("one_particle.yaml",
+                                    "urdf: r.urdf\nframe: base\nmuscles:\n"
+                                    "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
+                                    "   particles_per_fibre: 1}\n");
+  const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(one); });
+  EXPECT_CONTAINS(message, " line 5");
+  EXPECT_CONTAINS(message, "'particles_per_fibre' of muscle 'a' is 1, must be in [2, 10000]");
+  const std::string words = writeTemp("many_particles.yaml",
+                                      "urdf: r.urdf\nframe: base\nmuscles:\n"
+                                      "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
+                                      "   particles_per_fibre: many}\n");
+  EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(words); }),
+                  "'many' is not an integer");
+}
+
 TEST(Scene, DuplicateMuscleNamesAreRejected) {
   const std::string path = writeTemp("duplicate.yaml",
                                      "urdf: r.urdf\nframe: base\nmuscles:\n"

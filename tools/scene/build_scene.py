@@ -741,6 +741,8 @@ YAML_HEADER = """\
 #                           These four are written by tools/scene/sites.py from gait2392's path
 #                           points, mapped into the scene as the bones were (data/README.md,
 #                           "Attachment sites").
+#     particles_per_fibre   optional: particles sampled along each of this muscle's fibres
+#                           (count, >= 2); left out: the node's particles_per_fibre
 """
 
 

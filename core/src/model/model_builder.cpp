@@ -51,6 +51,10 @@ BoneQueries prepareBoneQueries(const std::vector<Bone>& bones) {
   return queries;
 }
 
+int particlesPerFibreOf(const Muscle& muscle, const ModelSettings& settings) {
+  return muscle.particles_per_fibre > 0 ? muscle.particles_per_fibre : settings.particles_per_fibre;
+}
+
 ParticlePairs layoutPairs(const ModelSettings& settings, const FibreSamples& samples) {
   switch (settings.spring_layout) {
     case SpringLayout::nearest_neighbours: return nearestNeighbourPairs(samples.position, settings.nearest_neighbours);
@@ -490,7 +494,10 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     const Muscle& muscle = muscles[m];
     FibreSamples samples;
     try {
-      samples = sampleFibres(muscle.fibres, settings.particles_per_fibre,
+      if (muscle.particles_per_fibre != 0 && muscle.particles_per_fibre < 2)
+        throw ModelError("particles_per_fibre " + std::to_string(muscle.particles_per_fibre) +
+                         " must be at least 2 (or 0: the model's)");
+      samples = sampleFibres(muscle.fibres, particlesPerFibreOf(muscle, settings),
                              settings.sampling_seed + static_cast<std::uint32_t>(m));
     } catch (const std::exception& error) {
       throw ModelError("muscle '" + muscle.name + "': " + error.what());
@@ -529,6 +536,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     const Muscle& muscle = muscles[m];
     const FibreSamples& samples = all_samples[m];
     const Eigen::Index count = samples.position.cols();
+    const int particles_per_fibre = particlesPerFibreOf(muscle, settings);
     MuscleBuildSummary summary;
     summary.name = muscle.name;
     summary.fibres = static_cast<int>(muscle.fibres.size()) - static_cast<int>(samples.skipped_fibres.size());
@@ -564,7 +572,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
       system.is_boundary[i] = boundary[local];
       summary.boundary_particles += boundary[local];
       if (bone_count == 0) {
-        const bool fibre_end = samples.sample_of[local] == 0 || samples.sample_of[local] == settings.particles_per_fibre - 1;
+        const bool fibre_end = samples.sample_of[local] == 0 || samples.sample_of[local] == particles_per_fibre - 1;
         system.is_fixed[i] = settings.fix_fibre_ends && fibre_end ? 1 : 0;
         summary.fixed_particles += system.is_fixed[i];
         continue;
@@ -584,7 +592,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
         }
       }
       const bool fibre_start = samples.sample_of[local] == 0;
-      const bool fibre_end = fibre_start || samples.sample_of[local] == settings.particles_per_fibre - 1;
+      const bool fibre_end = fibre_start || samples.sample_of[local] == particles_per_fibre - 1;
       if (attached == kNoBone && settings.fix_fibre_ends && fibre_end) {
         if (attachment.origin != kNoBone) {
           // The fibre's first particle belongs to the origin, its last to the insertion.

@@ -123,6 +123,20 @@ MuscleDescription parseMuscle(const YAML::Node& node, std::size_t index, const s
       m.reference_muscles.push_back(reference.Scalar());
     }
   }
+  const YAML::Node resolution = node["particles_per_fibre"];
+  if (resolution.IsDefined() && !resolution.IsNull()) {
+    int particles = 0;
+    try {
+      particles = resolution.as<int>();
+    } catch (const YAML::Exception&) {
+      throw SceneError(where(path, resolution.Mark()) + ": 'particles_per_fibre' of " + named + ": '" +
+                       resolution.Scalar() + "' is not an integer");
+    }
+    if (particles < 2 || particles > 10000)
+      throw SceneError(where(path, resolution.Mark()) + ": 'particles_per_fibre' of " + named + " is " +
+                       std::to_string(particles) + ", must be in [2, 10000] (leave it out for the model's)");
+    m.particles_per_fibre = particles;
+  }
   return m;
 }
 
@@ -448,6 +462,7 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
     muscle.name = m.name;
     muscle.origin_bone = m.origin_bone;
     muscle.insertion_bone = m.insertion_bone;
+    muscle.particles_per_fibre = m.particles_per_fibre;
     // Tendon paths: each point from its link's frame into the scene frame at rest; a point must lie on a bone.
     const auto placed = [&](const std::vector<SitePoint>& sites, const char* key) {
       std::vector<AttachmentSite> points;

@@ -35,6 +35,10 @@ struct Muscle {
   // insertion site (the first point nearest the belly). Empty: a fibre end away from its bone hangs from the bone's
   // nearest point (ModelSettings::tendons).
   std::vector<AttachmentSite> origin_path, insertion_path;
+  // Particles sampled along each of this muscle's fibres; 0 = the model's (ModelSettings::particles_per_fibre). A
+  // scene models each muscle only as finely as its error target needs (a small, stiff muscle keeps its shape with
+  // fewer particles than a long, bending one).
+  int particles_per_fibre = 0;
 };
 
 // Rigid transform of every bone from its rest placement to the current one (scene frame).

@@ -44,6 +44,8 @@ struct MuscleDescription {
   std::vector<SitePoint> origin_path, insertion_path;
   // `reference_muscles` key: the reference model's musculotendons this muscle is compared with (empty: none).
   std::vector<std::string> reference_muscles;
+  // `particles_per_fibre` key: this muscle's own resolution (Muscle::particles_per_fibre); 0 (no key): the model's.
+  int particles_per_fibre = 0;
 };
 
 // `reference_model` key: the musculoskeletal model the sites and the length reference come from (an OpenSim model) and
