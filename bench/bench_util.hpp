@@ -8,6 +8,8 @@
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <cmath>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -75,6 +77,13 @@ class JsonRecords {
     fields_.push_back("\"" + key + "\": " + text.str());
   }
   void add(const std::string& key, const std::string& value) { fields_.push_back("\"" + key + "\": \"" + value + "\""); }
+  // A figure that may not have been measured: null when absent or not finite (never 0).
+  void addMeasured(const std::string& key, const std::optional<double>& value) {
+    if (value && std::isfinite(*value))
+      add(key, *value);
+    else
+      fields_.push_back("\"" + key + "\": null");
+  }
   void end() {
     std::string object = "  {";
     for (std::size_t i = 0; i < fields_.size(); ++i) object += (i ? ", " : "") + fields_[i];

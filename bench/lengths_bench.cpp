@@ -12,6 +12,7 @@
 //
 // Writes out/bench/lengths.json.   lengths_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
+#include "gait_lengths.hpp"
 #include "node_defaults.hpp"
 
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
@@ -34,70 +35,6 @@ namespace {
 
 const std::vector<std::string> kJoints = {"hip_flexion_r", "hip_adduction_r", "hip_rotation_r", "knee_angle_r"};
 
-// Per muscle and frame (m): the mean belly length of its fibres and the mean belly + tendon length.
-struct Lengths {
-  std::vector<std::vector<double>> belly, whole;  // [muscle][frame]
-};
-
-void addFrame(const DeformationPipeline& pipeline, Lengths& lengths) {
-  const MassSpringSystem& system = pipeline.system();
-  const Eigen::Matrix3Xd& x = pipeline.state().position;
-  const int muscles = system.muscleCount();
-  if (lengths.belly.empty()) {
-    lengths.belly.resize(static_cast<std::size_t>(muscles));
-    lengths.whole.resize(static_cast<std::size_t>(muscles));
-  }
-  // Tendon length beyond each anchor (via points to the site), by anchor particle.
-  std::vector<double> beyond(static_cast<std::size_t>(system.particleCount()), 0.0);
-  for (const TendonPath& tendon : system.tendon_paths)
-    beyond[static_cast<std::size_t>(tendon.anchor)] = tendonPathBeyondAnchor(system, tendon, pipeline.boneTransforms());
-  for (int m = 0; m < muscles; ++m) {
-    const std::int32_t begin = system.muscle_begin[static_cast<std::size_t>(m)];
-    const std::int32_t end = system.muscle_begin[static_cast<std::size_t>(m) + 1];
-    std::vector<double> belly, tendon;
-    for (std::int32_t i = begin; i < end; ++i) {
-      const std::size_t p = static_cast<std::size_t>(i);
-      const int fibre = system.fibre_of[p];
-      if (fibre == kTendonAnchor) {
-        // sample_of of an anchor is the fibre it ends; its spring joins it to that fibre's end particle.
-        const std::size_t f = static_cast<std::size_t>(system.sample_of[p]);
-        if (tendon.size() <= f) tendon.resize(f + 1, 0.0);
-        double to_end = 0;
-        for (std::size_t s = 0; s < system.springs.size(); ++s)
-          if (system.springs.second[s] == i || system.springs.first[s] == i) {
-            const std::int32_t other = system.springs.first[s] == i ? system.springs.second[s] : system.springs.first[s];
-            to_end = (x.col(other) - x.col(i)).norm();
-            break;
-          }
-        tendon[f] += to_end + beyond[p];
-        continue;
-      }
-      if (belly.size() <= static_cast<std::size_t>(fibre)) belly.resize(static_cast<std::size_t>(fibre) + 1, 0.0);
-      if (i + 1 < end && system.fibre_of[p + 1] == fibre) belly[static_cast<std::size_t>(fibre)] += (x.col(i + 1) - x.col(i)).norm();
-    }
-    tendon.resize(belly.size(), 0.0);
-    double belly_mean = 0, whole_mean = 0;
-    for (std::size_t f = 0; f < belly.size(); ++f) {
-      belly_mean += belly[f] / static_cast<double>(belly.size());
-      whole_mean += (belly[f] + tendon[f]) / static_cast<double>(belly.size());
-    }
-    lengths.belly[static_cast<std::size_t>(m)].push_back(belly_mean);
-    lengths.whole[static_cast<std::size_t>(m)].push_back(whole_mean);
-  }
-}
-
-double correlation(const std::vector<double>& a, const std::vector<double>& b) {
-  const Eigen::Map<const Eigen::VectorXd> x(a.data(), static_cast<Eigen::Index>(a.size()));
-  const Eigen::Map<const Eigen::VectorXd> y(b.data(), static_cast<Eigen::Index>(b.size()));
-  const Eigen::VectorXd dx = x.array() - x.mean(), dy = y.array() - y.mean();
-  const double denominator = std::sqrt(dx.squaredNorm() * dy.squaredNorm());
-  return denominator > 0 ? dx.dot(dy) / denominator : std::nan("");
-}
-
-double range(const std::vector<double>& values) {
-  return *std::max_element(values.begin(), values.end()) - *std::min_element(values.begin(), values.end());
-}
-
 // Least-squares slopes (m/rad) of `length` against the joint angles (one row per frame), with an intercept.
 Eigen::VectorXd slopes(const Eigen::MatrixXd& angles, const std::vector<double>& length) {
   Eigen::MatrixXd design(angles.rows(), angles.cols() + 1);
@@ -112,22 +49,16 @@ Eigen::VectorXd slopes(const Eigen::MatrixXd& angles, const std::vector<double>&
 int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
   const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {});
-  const std::string package = MD_PACKAGE_DIR;
-  const SceneDescription description = loadSceneDescription(package + "/config/scenes/right_hip_thigh.yaml");
-  const std::string osim = resolveScenePath(description, description.reference_model.osim_file);
-  const OpenSimModel reference = OpenSimModel::fromFile(osim).scaled(description.reference_model.body_scales);
-  const MotionTable trial = loadMotionFile(package + "/data/opensim/subject01_walk1_ik_1cycle.mot");
-  const std::size_t frames = std::min(trial.rowCount(), bundled.gait.frames.size());
-  std::printf("lengths: %zu frames of the 1-cycle gait, reference %s scaled to the skeleton\n", frames, osim.c_str());
+  const bench::Gait2392Lengths reference = bench::gait2392LengthsFor(bundled);
+  const std::size_t frames = reference.frames;
+  std::printf("lengths: %zu frames of the 1-cycle gait, gait2392 scaled to the skeleton\n", frames);
 
-  // The reference's musculotendon lengths and the joint angles (the trial's, radians) per frame.
+  // The joint angles per frame (radians): the trial's (the reference's) and the bag's (the product's).
   Eigen::MatrixXd trial_angles(static_cast<Eigen::Index>(frames), static_cast<Eigen::Index>(kJoints.size()));
   Eigen::MatrixXd gait_angles(static_cast<Eigen::Index>(frames), static_cast<Eigen::Index>(kJoints.size()));
-  std::vector<CoordinateValues> coordinates;
   for (std::size_t f = 0; f < frames; ++f) {
-    coordinates.push_back(coordinateValuesAt(reference, trial, f));
     for (std::size_t j = 0; j < kJoints.size(); ++j) {
-      trial_angles(static_cast<Eigen::Index>(f), static_cast<Eigen::Index>(j)) = coordinates.back().at(kJoints[j]);
+      trial_angles(static_cast<Eigen::Index>(f), static_cast<Eigen::Index>(j)) = reference.coordinates[f].at(kJoints[j]);
       const JointValues& joints = bundled.gait.frames[f];
       const auto found = joints.find(kJoints[j]);
       gait_angles(static_cast<Eigen::Index>(f), static_cast<Eigen::Index>(j)) = found == joints.end() ? 0.0 : found->second;
@@ -136,19 +67,19 @@ int main(int argc, char** argv) {
 
   // The product, streamed as the node streams it, and converged frame by frame.
   const CoreSettings node = bench::loadNodeDefaults();
-  Lengths stream_lengths, converged_lengths;
+  bench::MuscleLengths stream_lengths, converged_lengths;
   for (const bool converged : {false, true}) {
     CoreSettings settings = node;
     settings.pipeline.skin_surfaces = settings.pipeline.measure_fidelity = false;
     settings.stream.refine_unfinished_frames = true;
     StreamSession session(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
                           settings.pipeline, settings.stream);
-    Lengths& lengths = converged ? converged_lengths : stream_lengths;
+    bench::MuscleLengths& lengths = converged ? converged_lengths : stream_lengths;
     const int refinements = options.quick ? 20 : 300;
     for (std::size_t f = 0; f < frames; ++f) {
       session.offer(bundled.gait.times_s[f], boneTransformsOf(session.bones(), gaitPose(bundled, f)), {});
       for (int k = 0; converged && k < refinements && session.wantsRefinement(); ++k) session.refine({});
-      addFrame(session.pipeline(), lengths);
+      bench::addLengthsOf(session.pipeline(), lengths);
     }
   }
 
@@ -167,24 +98,20 @@ int main(int argc, char** argv) {
       std::printf("  %-28s no counterpart in gait2392\n", muscle.name.c_str());
       continue;
     }
-    std::vector<double> reference_length(frames, 0.0);
-    for (std::size_t f = 0; f < frames; ++f)
-      for (const std::string& name : muscle.reference_muscles)
-        reference_length[f] += reference.musculotendonLength(name, coordinates[f]) /
-                               static_cast<double>(muscle.reference_muscles.size());
+    const std::vector<double>& reference_length = reference.length[m];
     const Eigen::VectorXd reference_slopes = slopes(trial_angles, reference_length);
-    records.add("range_mm_reference", 1e3 * range(reference_length));
+    records.add("range_mm_reference", 1e3 * bench::range(reference_length));
     for (std::size_t j = 0; j < kJoints.size(); ++j)
       records.add("mm_per_rad_reference_" + kJoints[j], 1e3 * reference_slopes[static_cast<Eigen::Index>(j)]);
-    for (const auto& [label, lengths] : {std::pair<std::string, const Lengths*>{"", &stream_lengths},
-                                         std::pair<std::string, const Lengths*>{"converged_", &converged_lengths}}) {
+    for (const auto& [label, lengths] : {std::pair<std::string, const bench::MuscleLengths*>{"", &stream_lengths},
+                                         std::pair<std::string, const bench::MuscleLengths*>{"converged_", &converged_lengths}}) {
       for (const auto& [part, series] : {std::pair<std::string, const std::vector<double>*>{"", &lengths->belly[m]},
                                           std::pair<std::string, const std::vector<double>*>{"with_tendon_", &lengths->whole[m]}}) {
         const std::string prefix = label + part;
         const Eigen::VectorXd product_slopes = slopes(gait_angles, *series);
-        records.add(prefix + "r", correlation(*series, reference_length));
-        records.add(prefix + "range_mm_product", 1e3 * range(*series));
-        records.add(prefix + "range_ratio", range(*series) / range(reference_length));
+        records.add(prefix + "r", bench::correlation(*series, reference_length));
+        records.add(prefix + "range_mm_product", 1e3 * bench::range(*series));
+        records.add(prefix + "range_ratio", bench::range(*series) / bench::range(reference_length));
         for (std::size_t j = 0; j < kJoints.size(); ++j)
           records.add(prefix + "mm_per_rad_product_" + kJoints[j], 1e3 * product_slopes[static_cast<Eigen::Index>(j)]);
       }
@@ -194,10 +121,10 @@ int main(int argc, char** argv) {
     records.end();
     const Eigen::VectorXd s = slopes(gait_angles, stream_lengths.belly[m]);
     std::printf("  %-28s r %.3f (converged %.3f); excursion %.1f / %.1f mm (x%.2f, converged x%.2f); knee %.0f / %.0f mm/rad, hip flexion %.0f / %.0f\n",
-                muscle.name.c_str(), correlation(stream_lengths.belly[m], reference_length),
-                correlation(converged_lengths.belly[m], reference_length), 1e3 * range(stream_lengths.belly[m]),
-                1e3 * range(reference_length), range(stream_lengths.belly[m]) / range(reference_length),
-                range(converged_lengths.belly[m]) / range(reference_length), 1e3 * s[3],
+                muscle.name.c_str(), bench::correlation(stream_lengths.belly[m], reference_length),
+                bench::correlation(converged_lengths.belly[m], reference_length), 1e3 * bench::range(stream_lengths.belly[m]),
+                1e3 * bench::range(reference_length), bench::range(stream_lengths.belly[m]) / bench::range(reference_length),
+                bench::range(converged_lengths.belly[m]) / bench::range(reference_length), 1e3 * s[3],
                 1e3 * reference_slopes[3], 1e3 * s[0], 1e3 * reference_slopes[0]);
     std::fflush(stdout);
   }

@@ -1,846 +1,744 @@
-// Speed against error on the bundled scene (issue 7 part 2, issue 8's measurements): the 13 thigh13 muscles, 64
-// fibres each, 20 particles per fibre, posed at five frames of the gait. For every configuration (spring layout, time
-// step rule, broad phase, cold or warm start, Verlet or local/global solver) one solve per pose is snapshotted at
-// growing iteration counts and each snapshot is compared with the same model's converged shape for that pose.
-// Also: the converged surface at 20-80 particles per fibre against the converged 80-per-fibre surface.
-// Writes out/bench/speed_vs_error.json.
+// Speed against error on the well-posed problem: the bundled thigh13 muscles (13), block descent with the node's
+// tissue drag (a frame has one answer, block_descent_solver.hpp), at several resolutions and spring layouts, streamed
+// over the 1-cycle gait and solved cold at five gait poses. Each configuration is one point with three kinds of error:
+//
+//   convergence  RMS particle distance to the converged answer of the same model (resolution and layout), as the
+//                real-time bench measures it: stream frames against the converged stream (every frame warm from the
+//                previous converged frame, kStreamReferenceSweeps sweeps; frame 0 cold) from the same converged frame
+//                0; cold poses against the same pose given kColdReferenceSweeps sweeps from its rigid pre-transform.
+//   resolution   RMS and largest distance between the vertices of the skinned muscle surfaces and those of the finest
+//                model (80 particles per fibre, 128 fibres per muscle, converged) at the same gait frames (stream:
+//                18, 36, 54, 72; frame 0 is every stream's common start) or poses (cold: the five gait poses); and the
+//                same for each muscle's mean belly fibre length. The surfaces are the skin of the particles alone:
+//                neither the skin's contact with the bones nor the volume projection moves them, so the figure is the
+//                model's and not a correction's.
+//   anatomy      (stream) each muscle's belly length over the gait against gait2392 (gait_lengths.hpp): the excursion
+//                ratio farthest from 1 and the lowest r over the 13 muscles; and the model's volume error (the skinned
+//                surface before any projection) at its worst muscle and compared frame or pose (skinning every frame
+//                of the finest model costs seconds a frame, so the stream's volume is read at the compared frames).
+//
+// The references' own convergence is measured and written: their force residual and how far the last stream frame and
+// the middle cold pose move when given as many sweeps again.
+//
+// Resolution per muscle: from the converged streams, each muscle's surface error against the finest model at each
+// resolution; a mixed model takes for each muscle the coarsest resolution whose error at every checked frame stays
+// within the worst muscle's error of uniform 20 particles per fibre, and is measured (references and configurations)
+// like the uniform ones in the same run.
+//
+// The peer: Bullet's soft bodies on the 20 x 64 model's particles and springs (bullet_peer.hpp), streamed over the gait
+// from the converged frame 0 at its default and more position iterations: frame time and distance to the converged
+// stream (solver "bullet_soft_body"; its other errors null).
+//
+// Fibre sets: 64 per muscle are the bundled ones (data/fibres/); 32 and 128 are generated here the same way
+// (generate_fibres' Laplace streamlines seeded on the field's mid-value section); a muscle whose section does not fit
+// 128 separate fibres keeps fewer (the count used is written).
+//
+// Writes out/bench/speed_vs_error.json: one object per configuration (keys below; null where not measured), one per
+// (model, muscle) for the per-muscle errors (solver "per_muscle") and one per model for its references (solver
+// "reference").
+//
+//   speed_error_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
-#include "progress.hpp"
+#include "gait_lengths.hpp"
+#include "node_defaults.hpp"
 #include "stream_play.hpp"
+#ifdef MD_HAVE_BULLET
+#include "bullet_peer.hpp"
+#endif
 
-#include "muscle_deformation/core/collision/collision.hpp"
-#include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
-#include "muscle_deformation/core/base/geometry.hpp"
-#include "muscle_deformation/core/solvers/local_global_solver.hpp"
-#include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/pipeline/stream_session.hpp"
-#include "muscle_deformation/core/solvers/verlet_solver.hpp"
-#include "muscle_deformation/core/model/spring_layout.hpp"
-#include "muscle_deformation/core/surfaces/surface_skinning.hpp"
+#include "muscle_deformation/preprocessing/fibre_generator.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 using namespace muscle_deformation;
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double secondsSince(Clock::time_point start) {
-  return std::chrono::duration<double>(Clock::now() - start).count();
+double elapsedSeconds() {
+  static const auto start = std::chrono::steady_clock::now();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-// VerletSettings documents its automatic fixed step as this share of the stability bound; the bound itself is
-// recovered from the step an automatic solver picks, so the fractions below are of the very bound the solver uses.
-constexpr double kAutoStepFraction = 0.9;
-
-// The converged shape of a pose: the quasi-static local/global solver in its quasi-Newton (L-BFGS) mode run until
-// the mean free-particle displacement per iteration is below this (the issue's rule), or the reference cap. The
-// damped Verlet solver and the plain local/global iteration both creep along the soft shape changes (bending of the
-// long muscles) for tens of thousands of iterations; on gait frame 0 L-BFGS met the rule in about 500 iterations with
-// a history of 16 and about 1700 with 8. The default run compares Verlet and L-BFGS(8) with it on one pose.
-constexpr double kReferenceToleranceM = 1e-7;
-constexpr int kReferenceLbfgsHistory = 16;
-constexpr int kCheckLbfgsHistory = 8;
-// Iterations per frame of the streaming runs (the node's situation: warm from the previous frame's result).
-constexpr int kStreamingVerletIterations[] = {1, 3, 10, 30, 100};
-constexpr int kStreamingLbfgsIterations[] = {1, 3, 10, 30};
-// Volume term weight of the local/global configurations that use one (relative to the springs' stiffness, see
-// LocalGlobalSettings::volume_weight); the local/global bench measured 1 better than 10 on the synthetic thigh.
-constexpr double kVolumeWeight = 1.0;
-
-// How much work a run does; --quick shrinks every cap.
-struct Budget {
+// One model of the thigh13 muscles: its resolution and spring layout. A mixed model gives each muscle its own.
+struct ModelVariant {
+  std::string label;
   int particles_per_fibre = 20;
-  int verlet_cap = 0;              // Verlet configurations
-  int local_global_cap = 0;        // local/global without the volume term
-  int local_global_volume_cap = 0; // with it (each iteration costs several times more)
-  int lbfgs_cap = 0;               // local/global in its L-BFGS mode
-  int reference_cap = 0;           // the converged shapes of the default layout (and the warm starts' frames)
-  int other_reference_cap = 0;     // the converged shapes of the other layouts
-  int resolution_reference_cap = 0;
-  int verlet_check_cap = 0;        // the Verlet solve compared with the reference on one pose
-  std::vector<int> resolutions;    // particles per fibre of the resolution study; the last is the finest
-  // One pose (the check frame): three poses took 127 s at 40 particles per fibre alone and pushed the default run past
-  // its 20-minute budget.
-  std::size_t resolution_poses = 1;
-};
-
-struct ModelChoice {
-  std::string label;  // "cubic6", "nearest18", ...
+  int fibres_per_muscle = 64;
   SpringLayout layout = SpringLayout::nearest_neighbours;
-  int neighbours = 0;  // nearest_neighbours only
+  int neighbours = 18;
+  std::vector<int> muscle_particles_per_fibre;  // mixed: per muscle (else empty)
+  std::vector<int> muscle_fibres;               // mixed: per muscle, a key of the fibre sets (else empty)
+  bool mixed() const { return !muscle_particles_per_fibre.empty(); }
 };
 
-std::string labelOf(SpringLayout layout, int neighbours) {
+std::string layoutLabel(SpringLayout layout, int neighbours) {
   return layout == SpringLayout::nearest_neighbours ? "nearest" + std::to_string(neighbours) : toString(layout);
 }
 
-ModelChoice modelChoice(SpringLayout layout, int neighbours = 0) { return {labelOf(layout, neighbours), layout, neighbours}; }
+ModelVariant uniform(int particles_per_fibre, int fibres, SpringLayout layout = SpringLayout::nearest_neighbours,
+                     int neighbours = 18) {
+  ModelVariant v;
+  v.particles_per_fibre = particles_per_fibre;
+  v.fibres_per_muscle = fibres;
+  v.layout = layout;
+  v.neighbours = neighbours;
+  v.label = std::to_string(particles_per_fibre) + " x " + std::to_string(fibres) + " " + layoutLabel(layout, neighbours);
+  return v;
+}
 
-ModelSettings modelSettings(const ModelChoice& choice, int particles_per_fibre) {
-  ModelSettings settings;
-  settings.particles_per_fibre = particles_per_fibre;
-  settings.spring_layout = choice.layout;
-  if (choice.layout == SpringLayout::nearest_neighbours) settings.nearest_neighbours = choice.neighbours;
+using FibreSets = std::map<int, std::vector<std::vector<Polyline>>>;  // fibres per muscle -> [muscle] fibres
+
+std::vector<Muscle> musclesOf(const BundledScene& bundled, const FibreSets& sets, const ModelVariant& v) {
+  std::vector<Muscle> muscles = bundled.scene.muscles;
+  for (std::size_t m = 0; m < muscles.size(); ++m) {
+    const int fibres = v.mixed() ? v.muscle_fibres[m] : v.fibres_per_muscle;
+    muscles[m].fibres = sets.at(fibres)[m];
+    muscles[m].particles_per_fibre = v.mixed() ? v.muscle_particles_per_fibre[m] : 0;
+  }
+  return muscles;
+}
+
+// The node's pipeline for a model, skinning the particles with neither the skin's bone contact nor the volume
+// projection (the model's own surface) and measuring its volume.
+PipelineSettings pipelineFor(const CoreSettings& node, const ModelVariant& v, SolverKind kind, int threads,
+                             int lbfgs_history = 0) {
+  PipelineSettings settings = node.pipeline;
+  ModelSettings& model = settings.simulation.model;
+  model.particles_per_fibre = v.particles_per_fibre;
+  model.spring_layout = v.layout;
+  model.nearest_neighbours = v.neighbours;
+  settings.simulation.solver_kind = kind;
+  settings.simulation.local_global.lbfgs_history = lbfgs_history;
+  settings.threads = threads;
+  settings.skin_surfaces = true;
+  settings.measure_fidelity = true;
+  settings.keep_surfaces_out_of_bones = false;
+  settings.surface_volume.keep_volume = false;
   return settings;
 }
 
-LocalGlobalSettings referenceSettings(int lbfgs_history) {
-  LocalGlobalSettings settings;
-  settings.quasi_static = true;
-  settings.lbfgs_history = lbfgs_history;
-  return settings;
+FrameStopping sweepsOf(const CoreSettings& node, int sweeps) {
+  FrameStopping stopping = node.stream.stopping;
+  stopping.sweeps.rule = StoppingRule::iterations;
+  stopping.sweeps.max_iterations = sweeps;
+  stopping.sweeps.limits = {};
+  return stopping;
 }
 
-// How a reference solve stops: the displacement rule at kReferenceToleranceM, or `cap` iterations.
-StoppingSettings referenceStopping(int cap) { return StoppingSettings::atDisplacement(kReferenceToleranceM, cap); }
-
-SimulationSettings referenceSimulationSettings(const ModelChoice& choice, int particles_per_fibre) {
-  SimulationSettings settings;
-  settings.model = modelSettings(choice, particles_per_fibre);
-  settings.solver_kind = SolverKind::local_global;
-  settings.local_global = referenceSettings(kReferenceLbfgsHistory);
-  return settings;  // collisions on, default CollisionSettings (octree)
+// Per muscle mean belly fibre length (m) of the pipeline's current state.
+std::vector<double> fibreLengthsOf(const DeformationPipeline& pipeline) {
+  bench::MuscleLengths lengths;
+  bench::addLengthsOf(pipeline, lengths);
+  std::vector<double> out;
+  for (const std::vector<double>& series : lengths.belly) out.push_back(series.front());
+  return out;
 }
 
-// The collision stage exactly as the pipeline builds it (same system, hence the same shrunk radii), for a
-// chosen broad phase, so configurations can call it from their own checkpointing hook.
-std::unique_ptr<CollisionWorld> collisionWorldFor(const DeformationPipeline& simulation, BroadPhaseKind broad_phase) {
-  CollisionSettings settings = simulation.settings().simulation.collision;
-  settings.broad_phase = broad_phase;
-  std::vector<SphereSet> bone_spheres;
-  std::vector<std::string> bone_names;
-  for (const Bone& bone : simulation.bones()) {
-    bone_spheres.push_back(boneSpheresOneRing(bone.surface, settings.bone_sphere_rule));
-    bone_names.push_back(bone.name);
+// Largest |volume error| (% of rest) over the frame's muscles; absent without metrics.
+std::optional<double> volumeErrorOf(const FrameResult& frame) {
+  if (!frame.has_metrics) return std::nullopt;
+  double worst = 0;
+  for (const MuscleMetrics& muscle : frame.metrics.muscles) worst = std::max(worst, std::abs(muscle.volume_error_pct));
+  return worst;
+}
+
+// Sums of squared vertex distances, counts and largest distance, per muscle.
+struct SurfaceError {
+  std::vector<double> squared_sum, max;
+  std::vector<long> count;
+  std::vector<double> worst_frame_rms;  // per muscle: the largest RMS of one frame
+
+  void add(const std::vector<Vertices>& surfaces, const std::vector<Vertices>& finest) {
+    if (surfaces.empty() || surfaces.size() != finest.size())
+      throw std::runtime_error("no skinned surfaces to compare (skinning disabled?)");
+    if (squared_sum.empty()) {
+      squared_sum.assign(surfaces.size(), 0.0);
+      max.assign(surfaces.size(), 0.0);
+      count.assign(surfaces.size(), 0);
+      worst_frame_rms.assign(surfaces.size(), 0.0);
+    }
+    for (std::size_t m = 0; m < surfaces.size(); ++m) {
+      const Eigen::VectorXd distance = (surfaces[m] - finest[m]).colwise().norm();
+      squared_sum[m] += distance.squaredNorm();
+      count[m] += distance.size();
+      max[m] = std::max(max[m], distance.maxCoeff());
+      worst_frame_rms[m] = std::max(worst_frame_rms[m], std::sqrt(distance.squaredNorm() / distance.size()));
+    }
   }
-  return std::make_unique<CollisionWorld>(simulation.system(), std::move(bone_spheres), settings, bone_names);
-}
-
-// Everything measured at one snapshot.
-struct PointMetrics {
-  double rms_mm = 0;
-  double spring_deviation = 0;
-  double volume_error_pct = 0, volume_error_max_pct = 0;  // skinned surfaces, |V - V_rest| / V_rest
-  double max_penetration_mm = 0;                            // collision spheres into bone spheres
-  double surface_penetration_mm = -1;                       // skinned surface vertices inside bone meshes; -1: not measured
+  bool empty() const { return squared_sum.empty(); }
+  double rmsMm() const {
+    double sum = 0;
+    long n = 0;
+    for (std::size_t m = 0; m < squared_sum.size(); ++m) {
+      sum += squared_sum[m];
+      n += count[m];
+    }
+    return 1e3 * std::sqrt(sum / static_cast<double>(n));
+  }
+  double maxMm() const { return 1e3 * *std::max_element(max.begin(), max.end()); }
 };
 
-// One model (layout and resolution) with what measuring it needs, and its converged shape per pose.
-struct ModelContext {
-  ModelChoice choice;
-  int particles_per_fibre = 0;
-  int reference_cap = 0;
-  // Builds the system (with the collision radii it shrinks at rest) that every configuration solves, and runs the
-  // reference settings, so the checkpointed reference solves can be checked against it (particles only).
-  std::unique_ptr<DeformationPipeline> simulation;
-  std::unique_ptr<LocalGlobalSolver> reference_solver;  // the simulation's settings, prefactored once per model
-  std::unique_ptr<SurfaceSkinning> skinning;     // default skinning settings (nearest_average)
-  std::unique_ptr<DeformationMetrics> metrics;
-  std::map<BroadPhaseKind, std::unique_ptr<CollisionWorld>> collision;
-  double stability_bound_s = 0;
-  std::map<std::size_t, Eigen::Matrix3Xd> reference;           // by gait frame
-  std::map<std::size_t, double> reference_drift_mm;            // how much the reference still moved (ReferenceSolve)
-  std::map<std::size_t, Eigen::Matrix3Xd> previous_converged;  // converged shape of the frame before (warm starts)
-  mutable std::vector<Vertices> surfaces;                      // skinning buffer
-
-  const MassSpringSystem& system() const { return simulation->system(); }
-  CollisionWorld& world(BroadPhaseKind kind) {
-    auto& slot = collision[kind];
-    if (!slot) slot = collisionWorldFor(*simulation, kind);
-    return *slot;
+// |difference| of each muscle's mean belly fibre length to the finest model's, over the checked frames.
+struct LengthError {
+  double squared_sum = 0, max = 0;
+  long count = 0;
+  void add(const std::vector<double>& lengths, const std::vector<double>& finest) {
+    for (std::size_t m = 0; m < lengths.size(); ++m) {
+      const double d = std::abs(lengths[m] - finest[m]);
+      squared_sum += d * d;
+      max = std::max(max, d);
+      ++count;
+    }
   }
+  std::optional<double> rmsMm() const {
+    return count ? std::optional<double>(1e3 * std::sqrt(squared_sum / static_cast<double>(count))) : std::nullopt;
+  }
+  std::optional<double> maxMm() const { return count ? std::optional<double>(1e3 * max) : std::nullopt; }
 };
 
-std::unique_ptr<ModelContext> makeModel(const BundledScene& bundled, const ModelChoice& choice,
-                                        int particles_per_fibre, int reference_cap) {
-  auto model = std::make_unique<ModelContext>();
-  model->choice = choice;
-  model->particles_per_fibre = particles_per_fibre;
-  model->reference_cap = reference_cap;
-  model->simulation = std::make_unique<DeformationPipeline>(
-      bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
-      bench::particlesOnly(referenceSimulationSettings(choice, particles_per_fibre)));
-  model->reference_solver =
-      std::make_unique<LocalGlobalSolver>(model->system(), model->simulation->settings().simulation.local_global);
-  model->skinning = std::make_unique<SurfaceSkinning>(model->system(), model->simulation->muscles(), SkinningSettings{});
-  model->metrics =
-      std::make_unique<DeformationMetrics>(model->simulation->bones(), model->simulation->muscles(), model->system());
-  const VerletSolver automatic(model->system(), VerletSettings{});
-  model->stability_bound_s = automatic.timeStep() / kAutoStepFraction;
-  return model;
+// The converged answers of one model, and what the finest model's are compared with.
+struct References {
+  std::vector<Eigen::Matrix3Xd> stream;                // [gait frame]
+  std::vector<Eigen::Matrix3Xd> cold;                  // [pose]
+  std::vector<std::vector<Vertices>> stream_surfaces;  // [checked frame][muscle]
+  std::vector<std::vector<Vertices>> cold_surfaces;    // [pose][muscle]
+  std::vector<std::vector<double>> stream_fibre_lengths, cold_fibre_lengths;  // [checked / pose][muscle] (m)
+  bench::MuscleLengths lengths;                        // every frame of the converged stream
+  std::optional<double> stream_volume_error_max_pct, cold_volume_error_max_pct;  // absent without metrics
+  std::vector<double> stream_residuals, cold_residuals, stream_ms, cold_ms;
+  double stream_moves_mm = 0, cold_moves_mm = 0;
+  long particles = 0, fibres = 0;
+};
+
+// What one configuration measured.
+struct Point {
+  std::string mode, solver, configuration;
+  int iterations = 0, threads = 0;
+  std::vector<double> frame_ms;
+  std::vector<double> convergence_sq;  // per frame: squared RMS (m^2) to the same model's reference
+  SurfaceError surface;
+  LengthError fibre_length;
+  std::optional<double> volume_error_max_pct;
+  bench::MuscleLengths lengths;  // stream: every frame
+  bool reference = false;
+};
+
+struct Context {
+  const BundledScene& bundled;
+  const CoreSettings& node;
+  FibreSets fibre_sets;
+  std::vector<BoneTransforms> gait;        // every gait frame
+  std::vector<std::size_t> checked;        // stream frames compared with the finest model
+  std::vector<std::size_t> poses;          // cold poses
+  bench::Gait2392Lengths gait2392;
+  int stream_reference_sweeps = 60, cold_reference_sweeps = 300;
+  const References* finest = nullptr;
+  bench::JsonRecords records;
+};
+
+bool isChecked(const Context& c, std::size_t frame, std::size_t& index) {
+  const auto it = std::find(c.checked.begin(), c.checked.end(), frame);
+  index = static_cast<std::size_t>(it - c.checked.begin());
+  return it != c.checked.end();
 }
 
-// The skinned surfaces of `position` (into model.surfaces).
-void skin(const ModelContext& model, const Eigen::Matrix3Xd& position, const BoneTransforms& transforms) {
-  model.skinning->update(position, transforms, model.surfaces);
+void addVolume(std::optional<double>& worst, const std::optional<double>& value) {
+  if (value) worst = std::max(worst.value_or(0.0), *value);
 }
 
-PointMetrics measurePoint(ModelContext& model, CollisionWorld& posed_world, const BoneTransforms& transforms,
-                          const Eigen::Matrix3Xd& position, const Eigen::Matrix3Xd& reference, bool with_surface) {
-  PointMetrics result;
-  result.rms_mm = bench::rmsMillimetres(position, reference);
-  result.spring_deviation = measureSprings(model.system().springs, position).deviation_ratio;
-  skin(model, position, transforms);
-  const int muscles = model.system().muscleCount();
-  for (int m = 0; m < muscles; ++m) {
-    const double volume = std::abs(enclosedVolume(model.surfaces[m], model.skinning->muscles()[m].triangles()));
-    const double error_pct = 100.0 * std::abs(volume - model.metrics->restVolume(m)) / model.metrics->restVolume(m);
-    result.volume_error_pct += error_pct / muscles;
-    result.volume_error_max_pct = std::max(result.volume_error_max_pct, error_pct);
+References referencesOf(Context& c, const ModelVariant& v) {
+  References r;
+  const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
+  DeformationPipeline pipeline(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
+                               pipelineFor(c.node, v, SolverKind::block_descent, 0));
+  r.particles = pipeline.system().particleCount();
+  for (const Muscle& m : muscles) r.fibres += static_cast<long>(m.fibres.size());
+  const FrameStopping stream_stopping = sweepsOf(c.node, c.stream_reference_sweeps);
+  const FrameStopping cold_stopping = sweepsOf(c.node, c.cold_reference_sweeps);
+  for (std::size_t f = 0; f < c.gait.size(); ++f) {
+    std::size_t k = 0;
+    const bool checked = isChecked(c, f, k);
+    const FrameResult& frame = pipeline.solve(c.gait[f], f == 0 ? StartMode::cold : StartMode::warm,
+                                              f == 0 ? cold_stopping : stream_stopping, checked, checked,
+                                              1.0 / bench::kGaitRateHz);
+    r.stream.push_back(pipeline.state().position);
+    if (f > 0) {
+      r.stream_residuals.push_back(frame.stats.solver.residual);
+      r.stream_ms.push_back(frame.stats.solver.total_ms);
+    }
+    addVolume(r.stream_volume_error_max_pct, volumeErrorOf(frame));
+    bench::addLengthsOf(pipeline, r.lengths);
+    if (checked) {
+      r.stream_surfaces.push_back(frame.surfaces);
+      r.stream_fibre_lengths.push_back(fibreLengthsOf(pipeline));
+    }
   }
-  ParticleState state;
-  state.position = position;
-  state.previous_position = position;
-  result.max_penetration_mm = 1e3 * posed_world.measure(state).max_penetration_muscle_bone_m;
-  if (with_surface) {
-    const SceneMetrics scene = model.metrics->measure(model.surfaces, position, transforms);
-    result.surface_penetration_mm = 1e3 * scene.max_inside_bone_depth_m;
-    // The same volume error by DeformationMetrics' own path: a mismatch would mean the fast path above is wrong.
-    if (std::abs(scene.volume_error_mean_pct - result.volume_error_pct) > 1e-6 * (1 + result.volume_error_pct))
-      std::printf("WARNING: volume error %.6f%% here, %.6f%% from DeformationMetrics\n", result.volume_error_pct,
-                  scene.volume_error_mean_pct);
+  // The last frame given as many sweeps again (nothing is streamed after it).
+  pipeline.refine(stream_stopping, false, false);
+  r.stream_moves_mm = bench::rmsMillimetres(pipeline.state().position, r.stream.back());
+  for (std::size_t k = 0; k < c.poses.size(); ++k) {
+    const FrameResult& frame = pipeline.solve(c.gait[c.poses[k]], StartMode::cold, cold_stopping, true, true);
+    r.cold.push_back(pipeline.state().position);
+    r.cold_residuals.push_back(frame.stats.solver.residual);
+    r.cold_ms.push_back(frame.stats.solver.total_ms);
+    addVolume(r.cold_volume_error_max_pct, volumeErrorOf(frame));
+    r.cold_surfaces.push_back(frame.surfaces);
+    r.cold_fibre_lengths.push_back(fibreLengthsOf(pipeline));
+    if (k == c.poses.size() / 2) {
+      pipeline.refine(cold_stopping, false, false);
+      r.cold_moves_mm = bench::rmsMillimetres(pipeline.state().position, r.cold.back());
+    }
   }
-  return result;
+  return r;
+}
+
+// The anatomy figures of a streamed gait: the excursion ratio farthest from 1 (as a ratio), the lowest r, and how many
+// muscles reach r >= 0.9.
+struct Anatomy {
+  std::optional<double> ratio_worst, r_worst;
+  int r_at_least_0_9 = 0, compared = 0, undefined = 0;
+};
+
+Anatomy anatomyOf(const Context& c, const bench::MuscleLengths& lengths) {
+  Anatomy a;
+  if (lengths.belly.empty() || lengths.belly.front().size() < c.gait2392.frames) return a;
+  for (std::size_t m = 0; m < lengths.belly.size(); ++m) {
+    const std::vector<double>& reference = c.gait2392.length[m];
+    if (reference.empty()) continue;
+    const std::vector<double> product(lengths.belly[m].begin(),
+                                      lengths.belly[m].begin() + static_cast<long>(c.gait2392.frames));
+    const double ratio = bench::range(product) / bench::range(reference);
+    const double r = bench::correlation(product, reference);
+    ++a.compared;
+    if (!std::isfinite(ratio) || ratio <= 0 || !std::isfinite(r)) {
+      ++a.undefined;  // a constant length series: no excursion ratio or r (counted, not hidden)
+      continue;
+    }
+    if (r >= 0.9) ++a.r_at_least_0_9;
+    if (!a.ratio_worst || std::abs(std::log(ratio)) > std::abs(std::log(*a.ratio_worst))) a.ratio_worst = ratio;
+    if (!a.r_worst || r < *a.r_worst) a.r_worst = r;
+  }
+  return a;
+}
+
+void record(Context& c, const ModelVariant& v, const References& own, const Point& p) {
+  bench::JsonRecords& out = c.records;
+  out.begin();
+  out.add("scene", "thigh13");
+  out.add("mode", p.mode);
+  out.add("solver", p.solver);
+  out.add("configuration", p.configuration);
+  out.add("model", v.label);
+  out.add("spring_layout", layoutLabel(v.layout, v.neighbours));
+  out.add("mixed_resolution", v.mixed() ? 1.0 : 0.0);
+  out.add("reference", p.reference ? 1.0 : 0.0);
+  out.addMeasured("iterations", p.iterations > 0 ? std::optional<double>(p.iterations) : std::nullopt);
+  out.add("threads", p.threads);
+  out.addMeasured("particles_per_fibre", v.mixed() ? std::nullopt : std::optional<double>(v.particles_per_fibre));
+  out.addMeasured("fibres_per_muscle", v.mixed() ? std::nullopt : std::optional<double>(v.fibres_per_muscle));
+  out.add("particles", static_cast<double>(own.particles));
+  out.add("fibres", static_cast<double>(own.fibres));
+  out.addMeasured("frame_ms_median", p.frame_ms.empty() ? std::nullopt : std::optional<double>(bench::median(p.frame_ms)));
+  std::optional<double> convergence;
+  if (!p.reference && !p.convergence_sq.empty()) {
+    double sum = 0;
+    for (double sq : p.convergence_sq) sum += sq;
+    convergence = 1e3 * std::sqrt(sum / static_cast<double>(p.convergence_sq.size()));
+  }
+  out.addMeasured("convergence_rms_mm", convergence);
+  out.addMeasured("resolution_rms_mm", p.surface.empty() ? std::nullopt : std::optional<double>(p.surface.rmsMm()));
+  out.addMeasured("resolution_max_mm", p.surface.empty() ? std::nullopt : std::optional<double>(p.surface.maxMm()));
+  out.addMeasured("fibre_length_rms_mm", p.fibre_length.rmsMm());
+  out.addMeasured("fibre_length_max_mm", p.fibre_length.maxMm());
+  out.addMeasured("model_volume_error_max_pct", p.volume_error_max_pct);
+  const Anatomy anatomy = p.mode == "stream" ? anatomyOf(c, p.lengths) : Anatomy{};
+  out.addMeasured("length_ratio_worst", anatomy.ratio_worst);
+  out.addMeasured("length_r_worst", anatomy.r_worst);
+  out.addMeasured("length_r_at_least_0_9",
+                  anatomy.compared ? std::optional<double>(anatomy.r_at_least_0_9) : std::nullopt);
+  out.addMeasured("length_undefined", anatomy.compared ? std::optional<double>(anatomy.undefined) : std::nullopt);
+  if (p.reference) {
+    const bool stream = p.mode == "stream";
+    out.add("reference_sweeps", stream ? c.stream_reference_sweeps : c.cold_reference_sweeps);
+    const std::vector<double>& residuals = stream ? own.stream_residuals : own.cold_residuals;
+    out.addMeasured("reference_residual_median",
+                    residuals.empty() ? std::nullopt : std::optional<double>(bench::median(residuals)));
+    out.add("reference_moves_mm", stream ? own.stream_moves_mm : own.cold_moves_mm);
+  }
+  out.end();
+  std::printf("[%6.1f s] %-6s %-28s %-44s frame %8.2f ms; convergence %s mm; surface to finest %s mm RMS, %s max; "
+              "volume %s %%; length ratio %s, r %s\n",
+              elapsedSeconds(), p.mode.c_str(), v.label.c_str(), p.configuration.c_str(), bench::median(p.frame_ms),
+              convergence ? std::to_string(*convergence).substr(0, 6).c_str() : "-",
+              p.surface.empty() ? "-" : std::to_string(p.surface.rmsMm()).substr(0, 5).c_str(),
+              p.surface.empty() ? "-" : std::to_string(p.surface.maxMm()).substr(0, 5).c_str(),
+              p.volume_error_max_pct ? std::to_string(*p.volume_error_max_pct).substr(0, 5).c_str() : "-",
+              anatomy.ratio_worst ? std::to_string(*anatomy.ratio_worst).substr(0, 5).c_str() : "-",
+              anatomy.r_worst ? std::to_string(*anatomy.r_worst).substr(0, 5).c_str() : "-");
+  std::fflush(stdout);
+}
+
+// The references as points of their own: the converged models' resolution and anatomy errors.
+void recordReferences(Context& c, const ModelVariant& v, const References& r) {
+  Point stream;
+  stream.mode = "stream";
+  stream.solver = "block_descent";
+  stream.configuration = "converged (" + std::to_string(c.stream_reference_sweeps) + " sweeps a frame)";
+  stream.iterations = c.stream_reference_sweeps;
+  stream.frame_ms = r.stream_ms;
+  stream.reference = true;
+  stream.lengths = r.lengths;
+  stream.volume_error_max_pct = r.stream_volume_error_max_pct;
+  Point cold = stream;
+  cold.mode = "cold";
+  cold.configuration = "converged (" + std::to_string(c.cold_reference_sweeps) + " sweeps)";
+  cold.iterations = c.cold_reference_sweeps;
+  cold.frame_ms = r.cold_ms;
+  cold.lengths = {};
+  cold.volume_error_max_pct = r.cold_volume_error_max_pct;
+  // The finest model's references are what the others are compared with: no resolution error of their own.
+  const bool is_finest = &r == c.finest;
+  for (std::size_t k = 0; k < c.checked.size() && !is_finest; ++k) {
+    stream.surface.add(r.stream_surfaces[k], c.finest->stream_surfaces[k]);
+    stream.fibre_length.add(r.stream_fibre_lengths[k], c.finest->stream_fibre_lengths[k]);
+  }
+  for (std::size_t k = 0; k < c.poses.size() && !is_finest; ++k) {
+    cold.surface.add(r.cold_surfaces[k], c.finest->cold_surfaces[k]);
+    cold.fibre_length.add(r.cold_fibre_lengths[k], c.finest->cold_fibre_lengths[k]);
+  }
+  record(c, v, r, stream);
+  record(c, v, r, cold);
+  // Per muscle: the converged stream's surface error at its worst checked frame.
+  for (std::size_t m = 0; m < c.bundled.scene.muscles.size() && !is_finest; ++m) {
+    c.records.begin();
+    c.records.add("scene", "thigh13");
+    c.records.add("mode", "stream");
+    c.records.add("solver", "per_muscle");
+    c.records.add("model", v.label);
+    c.records.add("mixed_resolution", v.mixed() ? 1.0 : 0.0);
+    c.records.add("muscle", c.bundled.scene.muscles[m].name);
+    c.records.addMeasured("particles_per_fibre", v.mixed() ? std::optional<double>(v.muscle_particles_per_fibre[m])
+                                                           : std::optional<double>(v.particles_per_fibre));
+    c.records.addMeasured("fibres_per_muscle", v.mixed() ? std::optional<double>(v.muscle_fibres[m])
+                                                         : std::optional<double>(v.fibres_per_muscle));
+    c.records.add("spring_layout", layoutLabel(v.layout, v.neighbours));
+    c.records.add("surface_rms_mm_worst_frame", 1e3 * stream.surface.worst_frame_rms[m]);
+    c.records.add("surface_max_mm", 1e3 * stream.surface.max[m]);
+    c.records.end();
+  }
+  std::printf("[%6.1f s] %s: %ld particles, %ld fibres; references: stream residual median %.2e, last frame moves "
+              "%.4f mm RMS with %d more sweeps; cold residual median %.2e, middle pose moves %.4f mm with %d more\n",
+              elapsedSeconds(), v.label.c_str(), r.particles, r.fibres, bench::median(r.stream_residuals),
+              r.stream_moves_mm, c.stream_reference_sweeps, bench::median(r.cold_residuals), r.cold_moves_mm,
+              c.cold_reference_sweeps);
 }
 
 struct Config {
   std::string label;
-  std::string model;  // ModelChoice label
-  SolverKind solver = SolverKind::verlet;
-  TimeStepRule dt_rule = TimeStepRule::fixed;
-  double dt_fraction = 0;  // fixed Verlet step as a share of the stability bound; 0 for adaptive and local/global
-  BroadPhaseKind broad_phase = BroadPhaseKind::octree;
-  bool warm = false;
-  double volume_weight = 0;
-  int lbfgs_history = 0;  // local/global quasi-Newton mode; 0 = plain local/global iterations
-  int cap = 0;
+  SolverKind kind = SolverKind::block_descent;
+  int iterations = 1;  // per frame; 0 under the node's time budget (not a fixed count)
+  int threads = 0;
+  int lbfgs_history = 0;
+  bool node_stopping = false;  // the node's own frame stopping (its time budget, catch-up and deep-contact sweeps)
 };
 
-void addCommon(bench::JsonRecords& records, const std::string& kind, const std::string& config, const std::string& solver,
-               const std::string& mode, const std::string& layout, const std::string& dt_rule, double dt_s,
-               double dt_fraction, const std::string& broad_phase, const std::string& start, double volume_weight,
-               int particles_per_fibre, std::size_t pose) {
-  records.add("kind", kind);
-  records.add("config", config);
-  records.add("solver", solver);
-  records.add("mode", mode);
-  records.add("layout", layout);
-  records.add("dt_rule", dt_rule);
-  records.add("dt_s", dt_s);
-  records.add("dt_fraction", dt_fraction);
-  records.add("broad_phase", broad_phase);
-  records.add("start", start);
-  records.add("volume_weight", volume_weight);
-  records.add("particles_per_fibre", particles_per_fibre);
-  records.add("pose", static_cast<double>(pose));
+Config blockDescent(int sweeps, int threads = 0) {
+  Config config;
+  config.label = "block_descent " + std::to_string(sweeps) + (sweeps == 1 ? " sweep" : " sweeps") +
+                 (threads == 1 ? ", 1 thread" : "");
+  config.iterations = sweeps;
+  config.threads = threads;
+  return config;
 }
 
-void addMetrics(bench::JsonRecords& records, const PointMetrics& metrics) {
-  records.add("rms_mm", metrics.rms_mm);
-  records.add("spring_deviation", metrics.spring_deviation);
-  records.add("volume_error_pct", metrics.volume_error_pct);
-  records.add("volume_error_max_pct", metrics.volume_error_max_pct);
-  records.add("max_penetration_mm", metrics.max_penetration_mm);
-  records.add("surface_penetration_mm", metrics.surface_penetration_mm);
-}
-
-// The gait frame a warm start comes from: the one before (at the start of the cycle, the one after).
-std::size_t neighbourFrame(std::size_t frame) { return frame > 0 ? frame - 1 : frame + 1; }
-
-// Converged shape of `frame` for `model` (a cold reference solve), recorded as a "reference" point. Solved with
-// snapshots (the same solver, settings and collision stage as the model's pipeline) so that how much it still
-// moved over the second half of its iterations can be reported: a bound on how far it may be from the true minimum.
-struct ReferenceSolve {
-  Eigen::Matrix3Xd position;
-  SolveStats stats;
-  double wall_ms = 0;
-  double drift_last_half_mm = 0;  // RMS distance from the snapshot at about half the iterations to the end
-  int drift_from_iteration = 0;
-};
-
-ReferenceSolve solveReference(ModelContext& model, const BundledScene& bundled, std::size_t frame) {
-  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
-  CollisionWorld& world = model.world(BroadPhaseKind::octree);
-  world.setBoneTransforms(transforms);
-  LocalGlobalSolver& solver = *model.reference_solver;
-  const StoppingSettings stopping = referenceStopping(model.reference_cap);
-  const bench::ConvergenceRun run = bench::coldSolve(
-      model.system(), transforms, &world, model.reference_cap,
-      [&](ParticleState& state, const AfterUpdateHook& hook) { return solver.solve(state, stopping, hook); });
-  ReferenceSolve result;
-  result.position = run.final_position;
-  result.stats = run.stats;
-  result.wall_ms = run.stats.total_ms;
-  for (const bench::Checkpoint& checkpoint : run.checkpoints)
-    if (2 * checkpoint.iteration <= run.stats.iterations) {
-      result.drift_from_iteration = checkpoint.iteration;
-      result.drift_last_half_mm = bench::rmsMillimetres(checkpoint.position, run.final_position);
+void measureStream(Context& c, const ModelVariant& v, const References& own, const Config& config) {
+  const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
+  StreamSessionSettings stream_settings = c.node.stream;
+  if (!config.node_stopping) stream_settings.stopping = sweepsOf(c.node, config.iterations);
+  StreamSession session(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
+                        pipelineFor(c.node, v, config.kind, config.threads, config.lbfgs_history), stream_settings);
+  Point p;
+  p.mode = "stream";
+  p.solver = toString(config.kind);
+  p.configuration = config.label;
+  p.iterations = config.iterations;
+  p.threads = config.threads;
+  session.continueFrom(bench::streamStamp(0), c.gait[0], own.stream[0]);
+  bench::addLengthsOf(session.pipeline(), p.lengths);
+  for (std::size_t f = 1; f < c.gait.size(); ++f) {
+    std::size_t k = 0;
+    const bool checked = isChecked(c, f, k);
+    const FrameResult* frame =
+        bench::frameOf(session.offer(bench::streamStamp(f), c.gait[f], FrameWants{checked, checked}));
+    if (frame) {
+      p.frame_ms.push_back(frame->stats.solver.total_ms);
+      addVolume(p.volume_error_max_pct, volumeErrorOf(*frame));
     }
-  return result;
-}
-
-void recordReference(bench::JsonRecords& records, ModelContext& model, const BundledScene& bundled,
-                     std::size_t frame, const ReferenceSolve& reference) {
-  const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
-  CollisionWorld& world = model.world(BroadPhaseKind::octree);
-  world.setBoneTransforms(transforms);
-  // Measured against itself through the same path as every curve point: its rms_mm must come out 0.
-  const PointMetrics metrics = measurePoint(model, world, transforms, reference.position, reference.position, true);
-  records.begin();
-  addCommon(records, "reference", "reference " + model.choice.label + " " + std::to_string(model.particles_per_fibre),
-            "local_global", "quasi_static", model.choice.label, "fixed", 0, 0, "octree", "cold", 0,
-            model.particles_per_fibre, frame);
-  records.add("iterations", reference.stats.iterations);
-  records.add("wall_ms", reference.wall_ms);
-  addMetrics(records, metrics);
-  records.add("reference_cap", model.reference_cap);
-  records.add("lbfgs_history", kReferenceLbfgsHistory);
-  records.add("reference_tolerance_m", kReferenceToleranceM);
-  records.add("last_mean_displacement_m", reference.stats.mean_displacement_m);
-  records.add("tolerance_reached", reference.stats.stopping_rule_met ? 1 : 0);
-  records.add("drift_last_half_mm", reference.drift_last_half_mm);
-  records.add("drift_from_iteration", reference.drift_from_iteration);
-  records.end();
-  std::printf("  reference %-10s ppf %d frame %2zu: %5d iterations, %7.0f ms, last mean displacement %.2e m (rule %s), "
-              "moved %.3f mm RMS since iteration %d, rms to itself %.3g mm, volume error %.2f%% (max %.2f%%), sphere "
-              "penetration %.2f mm, surface %.2f mm\n",
-              model.choice.label.c_str(), model.particles_per_fibre, frame, reference.stats.iterations,
-              reference.wall_ms, reference.stats.mean_displacement_m, reference.stats.stopping_rule_met ? "met" : "not met",
-              reference.drift_last_half_mm, reference.drift_from_iteration, metrics.rms_mm, metrics.volume_error_pct,
-              metrics.volume_error_max_pct, metrics.max_penetration_mm, metrics.surface_penetration_mm);
-}
-
-// The mean over poses of one configuration's curve, for the summary.
-struct CurveSummary {
-  std::vector<int> iterations;
-  std::vector<double> wall_ms_sum, rms_mm_sum;
-  int poses = 0;
-};
-
-// Adds one pose's curve (start state, then the checkpoints) to a summary.
-void accumulate(CurveSummary& summary, const std::vector<int>& iterations, const std::vector<double>& wall_ms,
-                const std::vector<double>& rms_mm) {
-  if (summary.iterations.empty()) {
-    summary.iterations = iterations;
-    summary.wall_ms_sum.assign(iterations.size(), 0);
-    summary.rms_mm_sum.assign(iterations.size(), 0);
-  }
-  for (std::size_t k = 0; k < iterations.size(); ++k) {
-    summary.wall_ms_sum[k] += wall_ms[k];
-    summary.rms_mm_sum[k] += rms_mm[k];
-  }
-  ++summary.poses;
-}
-
-// `summary` gathers every pose; `check_summary` only `check_frame`.
-void runConfig(const Config& config, ModelContext& model, const BundledScene& bundled,
-               const std::vector<std::size_t>& frames, std::size_t check_frame, bench::JsonRecords& records,
-               CurveSummary& summary, CurveSummary& check_summary) {
-  const MassSpringSystem& system = model.system();
-  std::unique_ptr<VerletSolver> verlet;
-  std::unique_ptr<LocalGlobalSolver> local_global;
-  double dt_s = 0;
-  double factorisation_ms = 0;
-  if (config.solver == SolverKind::verlet) {
-    VerletSettings settings;
-    settings.dt_rule = config.dt_rule;
-    if (config.dt_rule == TimeStepRule::fixed) settings.dt_s = config.dt_fraction * model.stability_bound_s;
-    verlet = std::make_unique<VerletSolver>(system, settings);
-    dt_s = verlet->timeStep();  // the fixed step, or the adaptive rule's upper clamp
-  } else {
-    LocalGlobalSettings settings;
-    settings.quasi_static = true;
-    settings.volume_weight = config.volume_weight;
-    settings.lbfgs_history = config.lbfgs_history;
-    // Prefactored once per model and settings and reused for every pose, as the pipeline does; reported apart.
-    local_global = std::make_unique<LocalGlobalSolver>(system, settings);
-    factorisation_ms = local_global->factorisationMilliseconds();
-  }
-  const StoppingSettings stopping = StoppingSettings::afterIterations(config.cap);
-  const bench::SolveFunction solve = [&](ParticleState& state, const AfterUpdateHook& hook) {
-    return verlet ? verlet->solve(state, stopping, hook) : local_global->solve(state, stopping, hook);
-  };
-  const std::string solver_name = toString(config.solver);
-  const std::string mode = config.solver == SolverKind::verlet ? "dynamic" : "quasi_static";
-  const std::string dt_rule = config.dt_rule == TimeStepRule::fixed ? "fixed" : "adaptive";
-  CollisionWorld& world = model.world(config.broad_phase);
-
-  for (const std::size_t frame : frames) {
-    const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), gaitPose(bundled, frame));
-    world.setBoneTransforms(transforms);
-    ParticleState start;
-    if (config.warm) {
-      // What the pipeline's StartMode::warm does after solving the frame before to convergence.
-      const std::size_t before = neighbourFrame(frame);
-      start.position = model.previous_converged.at(frame);
-      start.previous_position = start.position;
-      warmStart(system, boneTransformsOf(model.simulation->bones(), gaitPose(bundled, before)), transforms, start);
-    } else {
-      rigidPretransform(system, transforms, start);
+    const double rms = 1e-3 * bench::rmsMillimetres(session.pipeline().state().position, own.stream[f]);
+    p.convergence_sq.push_back(rms * rms);
+    bench::addLengthsOf(session.pipeline(), p.lengths);
+    if (checked && frame) {
+      p.surface.add(frame->surfaces, c.finest->stream_surfaces[k]);
+      p.fibre_length.add(fibreLengthsOf(session.pipeline()), c.finest->stream_fibre_lengths[k]);
     }
-    if (verlet) {
-      VerletSettings settings = verlet->settings();
-      verlet = std::make_unique<VerletSolver>(system, settings);  // fresh: the adaptive rule remembers its last step
-    }
-    const bench::ConvergenceRun run = bench::checkpointedSolve(start, &world, config.cap, solve);
-    const Eigen::Matrix3Xd& reference = model.reference.at(frame);
-
-    auto record = [&](int iteration, double wall_ms, const Eigen::Matrix3Xd& position, bool last) {
-      const PointMetrics metrics = measurePoint(model, world, transforms, position, reference, last);
-      records.begin();
-      addCommon(records, "curve", config.label, solver_name, mode, model.choice.label, dt_rule, dt_s,
-                config.dt_fraction, toString(config.broad_phase), config.warm ? "warm" : "cold", config.volume_weight,
-                model.particles_per_fibre, frame);
-      records.add("iterations", iteration);
-      records.add("wall_ms", wall_ms);
-      addMetrics(records, metrics);
-      records.add("factorisation_ms", factorisation_ms);
-      records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
-      records.add("lbfgs_history", config.lbfgs_history);
-      records.end();
-      return metrics;
-    };
-    const PointMetrics at_start = record(0, 0, run.start_position, false);
-    PointMetrics at_end;
-    std::vector<int> iterations = {0};
-    std::vector<double> wall_ms = {0}, rms_mm = {at_start.rms_mm};
-    for (std::size_t c = 0; c < run.checkpoints.size(); ++c) {
-      const bench::Checkpoint& checkpoint = run.checkpoints[c];
-      at_end = record(checkpoint.iteration, checkpoint.wall_ms, checkpoint.position, c + 1 == run.checkpoints.size());
-      iterations.push_back(checkpoint.iteration);
-      wall_ms.push_back(checkpoint.wall_ms);
-      rms_mm.push_back(at_end.rms_mm);
-    }
-    accumulate(summary, iterations, wall_ms, rms_mm);
-    if (frame == check_frame) accumulate(check_summary, iterations, wall_ms, rms_mm);
-    std::printf("    %-44s frame %2zu: rms %.2f mm at start, %.3f mm after %d iterations (%.0f ms); volume %.2f%% "
-                "(max %.2f%%), sphere penetration %.2f mm, surface %.2f mm\n",
-                config.label.c_str(), frame, at_start.rms_mm, at_end.rms_mm, run.checkpoints.back().iteration,
-                run.checkpoints.back().wall_ms, at_end.volume_error_pct, at_end.volume_error_max_pct,
-                at_end.max_penetration_mm, at_end.surface_penetration_mm);
   }
+  record(c, v, own, p);
 }
 
-// Wall time (mean over poses) of the first checkpoint whose mean RMS over poses is within `target_mm`; -1 if none.
-double millisecondsTo(const CurveSummary& summary, double target_mm) {
-  for (std::size_t c = 0; c < summary.iterations.size(); ++c)
-    if (summary.rms_mm_sum[c] / summary.poses <= target_mm) return summary.wall_ms_sum[c] / summary.poses;
-  return -1;
-}
-
-void printSummary(const std::string& title, const std::vector<Config>& configs,
-                  const std::vector<CurveSummary>& summaries) {
-  std::printf("\nsummary, %s (ms to reach a mean RMS; -1 = not reached within the cap):\n", title.c_str());
-  std::printf("%-48s %9s %9s %9s %9s %9s %11s %9s %9s\n", "config", "rms0_mm", "ms_to_5mm", "ms_to_2mm", "ms_to_1mm",
-              "ms_to_.5", "best_rms_mm", "at_iter", "at_ms");
-  for (std::size_t c = 0; c < configs.size(); ++c) {
-    const CurveSummary& summary = summaries[c];
-    if (summary.poses == 0) continue;
-    std::size_t best = 0;
-    for (std::size_t k = 1; k < summary.iterations.size(); ++k)
-      if (summary.rms_mm_sum[k] < summary.rms_mm_sum[best]) best = k;
-    std::printf("%-48s %9.3f %9.0f %9.0f %9.0f %9.0f %11.3f %9d %9.0f\n", configs[c].label.c_str(),
-                summary.rms_mm_sum[0] / summary.poses, millisecondsTo(summary, 5), millisecondsTo(summary, 2),
-                millisecondsTo(summary, 1), millisecondsTo(summary, 0.5), summary.rms_mm_sum[best] / summary.poses,
-                summary.iterations[best], summary.wall_ms_sum[best] / summary.poses);
+void measureCold(Context& c, const ModelVariant& v, const References& own, const Config& config) {
+  const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
+  DeformationPipeline pipeline(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
+                               pipelineFor(c.node, v, config.kind, config.threads, config.lbfgs_history));
+  Point p;
+  p.mode = "cold";
+  p.solver = toString(config.kind);
+  p.configuration = config.label;
+  p.iterations = config.iterations;
+  p.threads = config.threads;
+  for (std::size_t k = 0; k < c.poses.size(); ++k) {
+    const FrameResult& frame =
+        pipeline.solve(c.gait[c.poses[k]], StartMode::cold, sweepsOf(c.node, config.iterations), true, true);
+    p.frame_ms.push_back(frame.stats.solver.total_ms);
+    addVolume(p.volume_error_max_pct, volumeErrorOf(frame));
+    const double rms = 1e-3 * bench::rmsMillimetres(pipeline.state().position, own.cold[k]);
+    p.convergence_sq.push_back(rms * rms);
+    p.surface.add(frame.surfaces, c.finest->cold_surfaces[k]);
+    p.fibre_length.add(fibreLengthsOf(pipeline), c.finest->cold_fibre_lengths[k]);
   }
+  record(c, v, own, p);
 }
 
-// The node's situation: the gait streamed through the node's stream protocol (the core's StreamSession, poses 1/60 s
-// apart), every frame warm from the previous result with `iterations_per_frame` iterations, as the node does. The
-// cycle is played twice and the five reference frames are measured on the second pass, so each starts warm from a
-// stream that has run for a cycle. One curve point per reference frame: iterations = iterations per frame, wall_ms =
-// that frame's solve time.
-void runStreaming(const std::string& label, SolverKind solver, int lbfgs_history, int iterations_per_frame,
-                  ModelContext& model, const BundledScene& bundled, const std::vector<std::size_t>& frames,
-                  bench::JsonRecords& records) {
-  PipelineSettings settings = model.simulation->settings();
-  settings.simulation.solver_kind = solver;
-  settings.simulation.local_global.lbfgs_history = lbfgs_history;
-  StreamSessionSettings stream_settings;  // the core's stream defaults (warm starts, the node's speed limits)
-  stream_settings.stopping = FrameStopping::of(StoppingSettings::afterIterations(iterations_per_frame));
-  StreamSession stream(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones, settings,
-                       stream_settings);
-  const std::size_t frame_count = bundled.gait.frames.size();
-  double solve_ms_sum = 0;
-  // The gait loops smoothly, so the second pass goes on warm.
-  std::size_t played = 0;
-  for (int pass = 0; pass < 2; ++pass)
-    for (std::size_t frame = 0; frame < frame_count; ++frame) {
-      const Pose pose = gaitPose(bundled, frame);
-      const FrameResult* solved =
-          bench::frameOf(stream.offer(bench::streamStamp(played++), boneTransformsOf(stream.bones(), pose), FrameWants{}));
-      if (pass == 0 || std::find(frames.begin(), frames.end(), frame) == frames.end()) continue;
-      if (!solved) {
-        std::printf("    %-44s frame %zu: no bone moved since the last solved pose, not solved again\n", label.c_str(),
-                    frame);
-        continue;
-      }
-      const FrameStats& stats = solved->stats;
-      solve_ms_sum += stats.solver.total_ms;
-      const BoneTransforms transforms = boneTransformsOf(model.simulation->bones(), pose);
-      CollisionWorld& world = model.world(BroadPhaseKind::octree);
-      world.setBoneTransforms(transforms);
-      const PointMetrics metrics =
-          measurePoint(model, world, transforms, stream.pipeline().state().position, model.reference.at(frame), false);
-      records.begin();
-      addCommon(records, "curve", label, toString(solver), solver == SolverKind::verlet ? "dynamic" : "quasi_static",
-                model.choice.label, "fixed",
-                solver == SolverKind::verlet ? stream.pipeline().settings().simulation.verlet.dt_s : 0,
-                solver == SolverKind::verlet ? kAutoStepFraction : 0, "octree", "warm", 0, model.particles_per_fibre,
-                frame);
-      records.add("iterations", iterations_per_frame);
-      records.add("wall_ms", stats.solver.total_ms);
-      addMetrics(records, metrics);
-      records.add("reference_drift_mm", model.reference_drift_mm.at(frame));
-      records.add("lbfgs_history", lbfgs_history);
-      records.add("streaming", 1);
-      records.end();
+// The peer (bullet_peer.hpp) on the same model's particles and springs, streamed over the gait from the converged
+// frame 0: frame time and distance to the converged stream. Its surfaces, lengths and volume are not measured (they
+// would need our skinning of its particles): null. With the bone meshes as colliders Bullet meets each mesh triangle
+// by triangle and may take seconds a frame on this scene, so that variant plays until the gait ends or `budget_s` is
+// spent, and names the frames it played.
+void measurePeer(Context& c, const ModelVariant& v, const References& own, int position_iterations,
+                 bool bone_colliders, double budget_s) {
+#ifdef MD_HAVE_BULLET
+  const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
+  const DeformationPipeline model(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
+                                  bench::particlesOnly(pipelineFor(c.node, v, SolverKind::block_descent, 0)));
+  // Bullet's own distance-field voxel (0.25 m): ours (a particle radius) did not end one frame in 80 s.
+  // With colliders, Bullet frees its cache of triangle shapes pair by pair when a body leaves the world: measured, more
+  // than 13 minutes after three frames. That peer is left to the end of the process instead.
+  std::unique_ptr<bench::BulletPeer> owned = std::make_unique<bench::BulletPeer>(
+      model.system(), c.bundled.scene.bones, position_iterations, bone_colliders, -1, 0);
+  bench::BulletPeer& peer = *owned;
+  if (bone_colliders) static_cast<void>(owned.release());
+  peer.start(own.stream[0], c.gait[0]);
+  Point p;
+  p.mode = "stream";
+  p.solver = "bullet_soft_body";
+  // Played until the gait ends or the budget is spent (then the frames played are named).
+  const auto played_start = std::chrono::steady_clock::now();
+  std::size_t frames = 1;
+  bool finite = true;
+  for (; frames < c.gait.size() && finite; ++frames) {
+    p.frame_ms.push_back(peer.step(c.gait[frames], 1.0 / bench::kGaitRateHz));
+    const Eigen::Matrix3Xd x = peer.positions();
+    finite = x.allFinite();
+    const double rms = 1e-3 * bench::rmsMillimetres(x, own.stream[frames]);
+    p.convergence_sq.push_back(rms * rms);
+    if (std::chrono::duration<double>(std::chrono::steady_clock::now() - played_start).count() > budget_s) {
+      ++frames;
+      break;
     }
-  const StreamCounters& counters = stream.counters();
-  std::printf("    %-44s %3d iterations per frame: mean solve %.1f ms at the reference frames (%u poses: %u solved, %u "
-              "unchanged, %u restarts)\n",
-              label.c_str(), iterations_per_frame, solve_ms_sum / static_cast<double>(frames.size()), counters.offered,
-              counters.solved, counters.unchanged, counters.resets);
+  }
+  p.configuration = "bullet soft body, " + std::to_string(position_iterations) + " position iteration" +
+                    (position_iterations == 1 ? " (its default)" : "s") +
+                    (bone_colliders ? ", bone meshes as colliders" : ", no bone colliders") +
+                    (frames < c.gait.size() ? ", first " + std::to_string(frames - 1) + " frames" : "");
+  p.iterations = position_iterations;
+  p.threads = 1;
+  if (!finite) {
+    p.convergence_sq.clear();  // a stream that left finite numbers has no distance: absent
+    p.configuration += " (diverged)";
+  }
+  record(c, v, own, p);
+  c.records.begin();
+  c.records.add("scene", "thigh13");
+  c.records.add("mode", "stream");
+  c.records.add("solver", "peer_setup");
+  c.records.add("configuration", p.configuration);
+  c.records.add("frames", static_cast<double>(frames - 1));
+  c.records.add("bone_colliders", bone_colliders ? 1.0 : 0.0);
+  c.records.add("median_radius_mm", 1e3 * peer.medianRadius());
+  c.records.end();
+#else
+  (void)c, (void)v, (void)own, (void)bone_colliders, (void)budget_s;
+  std::printf("[%6.1f s] the peer (Bullet soft bodies, %d position iterations) not measured: built without "
+              "libbullet-dev\n", elapsedSeconds(), position_iterations);
+#endif
+}
+
+// Fibre sets of `count` fibres per muscle for the scene's muscles, made as the bundled ones were.
+std::vector<std::vector<Polyline>> generatedFibres(const BundledScene& bundled, int count) {
+  std::vector<std::vector<Polyline>> sets;
+  for (const Muscle& muscle : bundled.scene.muscles) {
+    const TriangleMesh* origin = nullptr;
+    const TriangleMesh* insertion = nullptr;
+    for (const Bone& bone : bundled.scene.bones) {
+      if (bone.name == muscle.origin_bone) origin = &bone.surface;
+      if (bone.name == muscle.insertion_bone) insertion = &bone.surface;
+    }
+    FibreGeneratorOptions options;
+    options.fibre_count = count;
+    options.seed_section = SeedSection::mid_value;
+    FibreGenerationResult result = generateFibres(muscle.surface, origin, insertion, options);
+    std::printf("[%6.1f s]   %s: %zu of %d fibres%s\n", elapsedSeconds(), muscle.name.c_str(), result.fibres.size(),
+                count, result.checks.passed() ? "" : (" (checks: " + result.checks.failures.front() + ")").c_str());
+    sets.push_back(std::move(result.fibres));
+  }
+  return sets;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   const bench::Options options = bench::parseOptions(argc, argv);
-  std::filesystem::create_directories(options.out_dir);
-  const auto start = Clock::now();
-
-  Budget budget;
+  elapsedSeconds();
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {"thigh13"});
+  const CoreSettings node = bench::loadNodeDefaults();
+  Context c{bundled, node, {}, {}, {}, {}, bench::gait2392LengthsFor(bundled), 60, 300, nullptr, {}};
+  const std::size_t frames = options.quick ? 12 : bundled.gait.frames.size();
+  for (std::size_t f = 0; f < frames; ++f) c.gait.push_back(boneTransformsOf(bundled.scene.bones, gaitPose(bundled, f)));
+  c.poses = options.quick ? std::vector<std::size_t>{6, 11} : fiveGaitFrames(bundled);
+  c.checked = {c.poses.begin() + 1, c.poses.end()};  // frame 0 is every stream's common start
   if (options.quick) {
-    budget.verlet_cap = 200;
-    budget.local_global_cap = 50;
-    budget.local_global_volume_cap = 20;
-    budget.lbfgs_cap = 50;
-    budget.reference_cap = 300;
-    budget.other_reference_cap = 300;
-    budget.resolution_reference_cap = 300;
-    budget.verlet_check_cap = 600;
-    budget.resolutions = {20, 40};
+    c.stream_reference_sweeps = 10;
+    c.cold_reference_sweeps = 20;
+  }
+
+  // The models, the finest first (every other is compared with it).
+  const ModelVariant finest = options.quick ? uniform(20, 64) : uniform(80, 128);
+  const ModelVariant base = uniform(20, 64);
+  std::vector<ModelVariant> models = {finest};
+  if (!options.quick) {
+    for (const int ppf : {10, 15, 20, 40, 80}) models.push_back(uniform(ppf, 64));
+    for (const int fibres : {32, 128}) models.push_back(uniform(20, fibres));
+    models.push_back(uniform(20, 64, SpringLayout::nearest_neighbours, 10));
+    models.push_back(uniform(20, 64, SpringLayout::cubic26));
   } else {
-    budget.verlet_cap = 1500;
-    budget.local_global_cap = 400;
-    budget.local_global_volume_cap = 100;
-    budget.lbfgs_cap = 300;
-    budget.reference_cap = 3000;
-    budget.other_reference_cap = 3000;
-    budget.resolution_reference_cap = 3000;
-    budget.verlet_check_cap = 20000;
-    budget.resolutions = {20, 40, 60, 80};
+    models.push_back(uniform(10, 64));
   }
+  c.fibre_sets[64] = {};
+  for (const Muscle& m : bundled.scene.muscles) c.fibre_sets[64].push_back(m.fibres);
+  for (const ModelVariant& v : models)
+    if (!c.fibre_sets.count(v.fibres_per_muscle)) {
+      std::printf("[%6.1f s] generating %d fibres per muscle\n", elapsedSeconds(), v.fibres_per_muscle);
+      c.fibre_sets[v.fibres_per_muscle] = generatedFibres(bundled, v.fibres_per_muscle);
+    }
 
-  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR);
-  const std::vector<std::size_t> five = fiveGaitFrames(bundled);
-  // Quick runs use the middle frame only (mid-cycle, where the default run checks the two solvers against each other).
-  const std::size_t check_frame = five[five.size() / 2];
-  const std::vector<std::size_t> frames = options.quick ? std::vector<std::size_t>{check_frame} : five;
-  // The resolution study's poses: the check frame first, then the others of the five.
-  std::vector<std::size_t> resolution_frames = {check_frame};
-  for (const std::size_t frame : frames)
-    if (resolution_frames.size() < budget.resolution_poses && frame != check_frame) resolution_frames.push_back(frame);
-
-  const ModelSettings defaults;
-  const ModelChoice default_model = modelChoice(defaults.spring_layout, defaults.nearest_neighbours);
-  const std::vector<ModelChoice> models = {
-      modelChoice(SpringLayout::cubic6),
-      modelChoice(SpringLayout::cubic26),
-      modelChoice(SpringLayout::nearest_neighbours, 10),
-      modelChoice(SpringLayout::nearest_neighbours, 18),
-      modelChoice(SpringLayout::nearest_neighbours, 25),
-      modelChoice(SpringLayout::delaunay),
+  const auto configurationsOf = [&](const ModelVariant& v) {
+    std::vector<Config> stream, cold;
+    const bool is_base = v.label == base.label && !v.mixed();
+    for (const int sweeps : is_base ? std::vector<int>{1, 2, 4, 8} : std::vector<int>{1, 4})
+      stream.push_back(blockDescent(sweeps));
+    for (const int sweeps : is_base ? std::vector<int>{10, 20, 40, 80} : std::vector<int>{10, 20, 40})
+      cold.push_back(blockDescent(sweeps));
+    if (is_base) {
+      stream.push_back(blockDescent(1, 1));
+      Config node_default;
+      node_default.label = "node default (budget " +
+                           std::to_string(static_cast<int>(node.stream.stopping.sweeps.time_budget_ms)) + " ms)";
+      node_default.kind = node.pipeline.simulation.solver_kind;
+      node_default.node_stopping = true;
+      node_default.iterations = 0;
+      node_default.threads = node.pipeline.threads;
+      stream.push_back(node_default);
+      for (const int iterations : {30, 100}) {
+        Config verlet;
+        verlet.label = "verlet " + std::to_string(iterations) + " iterations";
+        verlet.kind = SolverKind::verlet;
+        verlet.iterations = iterations;
+        stream.push_back(verlet);
+      }
+      for (const int iterations : {10, 30}) {
+        Config local_global;
+        local_global.label = "local_global lbfgs16 " + std::to_string(iterations) + " iterations";
+        local_global.kind = SolverKind::local_global;
+        local_global.iterations = iterations;
+        local_global.lbfgs_history = 16;
+        stream.push_back(local_global);
+      }
+      Config service;
+      service.label = "local_global lbfgs16 120 iterations";
+      service.kind = SolverKind::local_global;
+      service.iterations = 120;
+      service.lbfgs_history = 16;
+      cold.push_back(service);
+    }
+    return std::make_pair(stream, cold);
   };
 
-  // Configurations: every layout with the automatic fixed step; the rest on the default layout.
-  std::vector<Config> configs;
-  auto verletConfig = [&](const std::string& model, TimeStepRule rule, double fraction, BroadPhaseKind broad, bool warm) {
-    Config config;
-    config.model = model;
-    config.solver = SolverKind::verlet;
-    config.dt_rule = rule;
-    config.dt_fraction = rule == TimeStepRule::fixed ? fraction : 0;
-    config.broad_phase = broad;
-    config.warm = warm;
-    config.cap = budget.verlet_cap;
-    char label[160];
-    std::snprintf(label, sizeof label, "verlet %s dt %s %s %s", model.c_str(),
-                  rule == TimeStepRule::fixed ? (std::to_string(fraction).substr(0, 4) + "xbound").c_str() : "adaptive",
-                  toString(broad), warm ? "warm" : "cold");
-    config.label = label;
-    return config;
+  References finest_references;
+  std::map<std::string, std::vector<double>> per_muscle_worst;  // model label -> per muscle worst-frame RMS (m)
+  const auto run = [&](const ModelVariant& v) {
+    std::printf("[%6.1f s] model %s: references\n", elapsedSeconds(), v.label.c_str());
+    std::fflush(stdout);
+    References own = referencesOf(c, v);
+    const References* own_references = &own;
+    if (!c.finest) {
+      finest_references = std::move(own);
+      c.finest = own_references = &finest_references;
+    }
+    const References& r = *own_references;
+    recordReferences(c, v, r);
+    SurfaceError errors;
+    for (std::size_t k = 0; k < c.checked.size(); ++k) errors.add(r.stream_surfaces[k], c.finest->stream_surfaces[k]);
+    per_muscle_worst[v.label] = errors.worst_frame_rms;
+    const auto [stream, cold] = configurationsOf(v);
+    for (const Config& config : stream) measureStream(c, v, r, config);
+    for (const Config& config : cold) measureCold(c, v, r, config);
+    if (v.label == base.label && !v.mixed()) {
+      for (const int iterations : options.quick ? std::vector<int>{1, 4} : std::vector<int>{1, 4, 16, 64})
+        measurePeer(c, v, r, iterations, false, 1e9);
+      measurePeer(c, v, r, 1, true, options.quick ? 20.0 : 60.0);
+    }
   };
-  const std::string default_label = default_model.label;
-  for (const ModelChoice& model : models)
-    configs.push_back(verletConfig(model.label, TimeStepRule::fixed, kAutoStepFraction, BroadPhaseKind::octree, false));
-  for (const double fraction : {0.25, 0.5})
-    configs.push_back(verletConfig(default_label, TimeStepRule::fixed, fraction, BroadPhaseKind::octree, false));
-  configs.push_back(verletConfig(default_label, TimeStepRule::adaptive, 0, BroadPhaseKind::octree, false));
-  configs.push_back(verletConfig(default_label, TimeStepRule::fixed, kAutoStepFraction, BroadPhaseKind::hash_grid, false));
-  configs.push_back(verletConfig(default_label, TimeStepRule::fixed, kAutoStepFraction, BroadPhaseKind::octree, true));
-  for (const double volume_weight : {0.0, kVolumeWeight})
-    for (const bool warm : {false, true}) {
-      Config config;
-      config.model = default_label;
-      config.solver = SolverKind::local_global;
-      config.volume_weight = volume_weight;
-      config.warm = warm;
-      config.cap = volume_weight > 0 ? budget.local_global_volume_cap : budget.local_global_cap;
-      config.label = "local_global " + default_label + (volume_weight > 0 ? " volume " : " ") + (warm ? "warm" : "cold");
-      configs.push_back(config);
+  for (const ModelVariant& v : models) run(v);
+
+  // Resolution per muscle: the coarsest measured nearest18 model whose surface error for that muscle stays within the
+  // worst muscle's error of uniform 20 x 64 at every checked frame.
+  if (!options.quick) {
+    const std::vector<double>& uniform20 = per_muscle_worst.at(base.label);
+    const double target = *std::max_element(uniform20.begin(), uniform20.end());
+    ModelVariant mixed;
+    mixed.label = "per muscle within " + std::to_string(1e3 * target).substr(0, 4) + " mm";
+    std::printf("[%6.1f s] resolution per muscle, target %.3f mm RMS (the worst muscle of %s):\n", elapsedSeconds(),
+                1e3 * target, base.label.c_str());
+    for (std::size_t m = 0; m < bundled.scene.muscles.size(); ++m) {
+      const ModelVariant* chosen = &base;
+      long fewest = static_cast<long>(base.particles_per_fibre) * base.fibres_per_muscle;
+      for (const ModelVariant& v : models) {
+        if (v.label == finest.label || v.layout != SpringLayout::nearest_neighbours || v.neighbours != 18) continue;
+        const long size = static_cast<long>(v.particles_per_fibre) * v.fibres_per_muscle;
+        if (per_muscle_worst.at(v.label)[m] <= target && size < fewest) {
+          chosen = &v;
+          fewest = size;
+        }
+      }
+      mixed.muscle_particles_per_fibre.push_back(chosen->particles_per_fibre);
+      mixed.muscle_fibres.push_back(chosen->fibres_per_muscle);
+      std::printf("  %-28s %d x %d (its error there %.3f mm)\n", bundled.scene.muscles[m].name.c_str(),
+                  chosen->particles_per_fibre, chosen->fibres_per_muscle, 1e3 * per_muscle_worst.at(chosen->label)[m]);
     }
-  for (const bool warm : {false, true}) {
-    Config config;
-    config.model = default_label;
-    config.solver = SolverKind::local_global;
-    config.lbfgs_history = kReferenceLbfgsHistory;
-    config.warm = warm;
-    config.cap = budget.lbfgs_cap;
-    config.label = "local_global " + default_label + " lbfgs" + std::to_string(kReferenceLbfgsHistory) + (warm ? " warm" : " cold");
-    configs.push_back(config);
+    run(mixed);
   }
-
-  // Work for the time estimate, in particle iterations over particles per fibre (the fibre count is the same for
-  // every model): references at their caps, the reference check, every configuration, the resolution study.
-  const auto work = [](double iterations, int particles_per_fibre) { return iterations * particles_per_fibre; };
-  double total_work = 0;
-  for (const ModelChoice& model : models)
-    total_work += work(static_cast<double>(model.label == default_label ? 2 * budget.reference_cap : budget.other_reference_cap) *
-                           static_cast<double>(frames.size()),
-                       budget.particles_per_fibre);
-  for (const Config& config : configs)
-    total_work += work(static_cast<double>(config.cap) * static_cast<double>(frames.size()), budget.particles_per_fibre);
-  total_work += work(budget.verlet_check_cap + budget.reference_cap, budget.particles_per_fibre);
-  // Streaming: two passes over the gait per iteration count; an L-BFGS iteration costs about three Verlet ones.
-  double streaming_work = 0;
-  for (const int per_frame : kStreamingVerletIterations)
-    streaming_work += work(2.0 * static_cast<double>(bundled.gait.frames.size()) * per_frame, budget.particles_per_fibre);
-  for (const int per_frame : kStreamingLbfgsIterations)
-    streaming_work += work(6.0 * static_cast<double>(bundled.gait.frames.size()) * per_frame, budget.particles_per_fibre);
-  total_work += streaming_work;
-  for (const int ppf : budget.resolutions)
-    if (ppf != budget.particles_per_fibre)
-      total_work += work(static_cast<double>(budget.resolution_reference_cap) * static_cast<double>(resolution_frames.size()), ppf);
-  bench::Progress progress("speed_vs_error", total_work);
-
-  std::printf("speed against error: thigh13, %d particles per fibre, gait frames", budget.particles_per_fibre);
-  for (const std::size_t frame : frames) std::printf(" %zu", frame);
-  std::printf("; caps: Verlet %d, local/global %d (with volume term %d, L-BFGS %d); references: local/global L-BFGS(%d) to "
-              "%.0e m per iteration or %d iterations (default layout), %d (other layouts), %d (resolution study)\n",
-              budget.verlet_cap, budget.local_global_cap, budget.local_global_volume_cap, budget.lbfgs_cap,
-              kReferenceLbfgsHistory, kReferenceToleranceM, budget.reference_cap, budget.other_reference_cap,
-              budget.resolution_reference_cap);
-
-  bench::JsonRecords records;
-  std::vector<CurveSummary> summaries(configs.size()), check_summaries(configs.size());
-  std::map<std::size_t, ReferenceSolve> default_references;  // the default model's converged shapes, for resolution
-
-  for (const ModelChoice& choice : models) {
-    const auto model_start = Clock::now();
-    const bool is_default = choice.label == default_label;
-    std::unique_ptr<ModelContext> model = makeModel(bundled, choice, budget.particles_per_fibre,
-                                                    is_default ? budget.reference_cap : budget.other_reference_cap);
-    std::printf("model %s: %ld particles, %zu springs, stability bound %.3e s (built in %.1f s)\n", choice.label.c_str(),
-                static_cast<long>(model->system().particleCount()), model->system().springs.size(),
-                model->stability_bound_s, secondsSince(model_start));
-    for (const std::size_t frame : frames) {
-      const ReferenceSolve reference = solveReference(*model, bundled, frame);
-      model->reference[frame] = reference.position;
-      model->reference_drift_mm[frame] = reference.drift_last_half_mm;
-      if (is_default) default_references[frame] = reference;
-      recordReference(records, *model, bundled, frame, reference);
-      if (is_default) {
-        const ReferenceSolve before = solveReference(*model, bundled, neighbourFrame(frame));
-        model->previous_converged[frame] = before.position;
-        std::printf("  converged frame %zu for the warm start of frame %zu: %d iterations, last mean displacement %.2e m, "
-                    "moved %.3f mm RMS since iteration %d\n",
-                    neighbourFrame(frame), frame, before.stats.iterations, before.stats.mean_displacement_m,
-                    before.drift_last_half_mm, before.drift_from_iteration);
-      }
-    }
-    progress.finished("references of " + choice.label,
-                      work(static_cast<double>((is_default ? 2 : 1) * model->reference_cap) * static_cast<double>(frames.size()),
-                           budget.particles_per_fibre));
-
-    if (is_default) {
-      // The checkpointed solves must be the solves the pipeline runs: its own solve, stopped at a checkpoint's
-      // iteration count, has to land on that checkpoint.
-      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), gaitPose(bundled, check_frame));
-      CollisionWorld& world = model->world(BroadPhaseKind::octree);
-      const int same_cap = budget.local_global_cap;
-      const PipelineSettings& short_settings = model->simulation->settings();
-      const StoppingSettings short_stopping = StoppingSettings::afterIterations(same_cap);
-      DeformationPipeline short_simulation(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones,
-                                           short_settings);
-      short_simulation.solve(transforms, StartMode::cold, FrameStopping::of(short_stopping), false, false);
-      world.setBoneTransforms(transforms);
-      LocalGlobalSolver short_solver(model->system(), short_settings.simulation.local_global);
-      const bench::ConvergenceRun short_run = bench::coldSolve(
-          model->system(), transforms, &world, same_cap,
-          [&](ParticleState& state, const AfterUpdateHook& hook) { return short_solver.solve(state, short_stopping, hook); });
-      const double harness_difference_mm = bench::rmsMillimetres(short_run.final_position, short_simulation.state().position);
-      std::printf("  the pipeline against the checkpointed solve after %d iterations: %.3g mm RMS apart\n", same_cap,
-                  harness_difference_mm);
-
-      // Which solver gives the trustworthy converged shape: damped Verlet and L-BFGS with a shorter history, each run
-      // cold to the same rule, compared with the reference.
-      const Eigen::Matrix3Xd& reference = model->reference.at(check_frame);
-      struct CheckSolve {
-        std::string solver;
-        int lbfgs_history;
-        bench::ConvergenceRun run;
-      };
-      std::vector<CheckSolve> checks;
-      {
-        VerletSolver verlet(model->system(), VerletSettings{});
-        const StoppingSettings verlet_stopping = referenceStopping(budget.verlet_check_cap);
-        checks.push_back({"verlet", 0, bench::coldSolve(model->system(), transforms, &world, budget.verlet_check_cap,
-                                                        [&](ParticleState& state, const AfterUpdateHook& hook) {
-                                                          return verlet.solve(state, verlet_stopping, hook);
-                                                        })});
-        LocalGlobalSolver lbfgs(model->system(), referenceSettings(kCheckLbfgsHistory));
-        const StoppingSettings lbfgs_stopping = referenceStopping(budget.reference_cap);
-        checks.push_back({"local_global", kCheckLbfgsHistory,
-                          bench::coldSolve(model->system(), transforms, &world, budget.reference_cap,
-                                           [&](ParticleState& state, const AfterUpdateHook& hook) {
-                                             return lbfgs.solve(state, lbfgs_stopping, hook);
-                                           })});
-      }
-      for (const CheckSolve& check : checks) {
-        const bench::ConvergenceRun& run = check.run;
-        double drift_mm = 0;
-        int drift_from = 0;
-        for (const bench::Checkpoint& checkpoint : run.checkpoints)
-          if (2 * checkpoint.iteration <= run.stats.iterations) {
-            drift_from = checkpoint.iteration;
-            drift_mm = bench::rmsMillimetres(checkpoint.position, run.final_position);
-          }
-        const double to_reference_mm = bench::rmsMillimetres(run.final_position, reference);
-        std::printf("  reference check, frame %zu: %s (L-BFGS history %d) cold to the same rule ran %d iterations (%.0f "
-                    "ms, last mean displacement %.2e m, rule %s, moved %.3f mm since iteration %d) and ends %.3f mm RMS "
-                    "from the reference\n",
-                    check_frame, check.solver.c_str(), check.lbfgs_history, run.stats.iterations, run.stats.total_ms,
-                    run.stats.mean_displacement_m, run.stats.stopping_rule_met ? "met" : "not met", drift_mm, drift_from,
-                    to_reference_mm);
-        records.begin();
-        addCommon(records, "reference_check", "reference check " + check.solver, check.solver,
-                  check.solver == "verlet" ? "dynamic" : "quasi_static", choice.label, "fixed",
-                  check.solver == "verlet" ? kAutoStepFraction * model->stability_bound_s : 0,
-                  check.solver == "verlet" ? kAutoStepFraction : 0, "octree", "cold", 0, budget.particles_per_fibre,
-                  check_frame);
-        records.add("lbfgs_history", check.lbfgs_history);
-        records.add("iterations", run.stats.iterations);
-        records.add("wall_ms", run.stats.total_ms);
-        records.add("rms_mm", to_reference_mm);
-        records.add("last_mean_displacement_m", run.stats.mean_displacement_m);
-        records.add("tolerance_reached", run.stats.stopping_rule_met ? 1 : 0);
-        records.add("drift_last_half_mm", drift_mm);
-        records.add("drift_from_iteration", drift_from);
-        records.add("simulation_vs_checkpointed_rms_mm", harness_difference_mm);
-        records.add("simulation_vs_checkpointed_iterations", same_cap);
-        records.end();
-      }
-      progress.finished("reference check", work(budget.verlet_check_cap + budget.reference_cap, budget.particles_per_fibre));
-    }
-
-    for (std::size_t c = 0; c < configs.size(); ++c) {
-      if (configs[c].model != choice.label) continue;
-      runConfig(configs[c], *model, bundled, frames, check_frame, records, summaries[c], check_summaries[c]);
-      progress.finished(configs[c].label,
-                        work(static_cast<double>(configs[c].cap) * static_cast<double>(frames.size()), budget.particles_per_fibre));
-    }
-    if (is_default) {
-      for (const int per_frame : kStreamingVerletIterations)
-        runStreaming("verlet " + default_label + " streaming", SolverKind::verlet, 0, per_frame, *model, bundled, frames,
-                     records);
-      for (const int per_frame : kStreamingLbfgsIterations)
-        runStreaming("local_global " + default_label + " lbfgs" + std::to_string(kReferenceLbfgsHistory) + " streaming",
-                     SolverKind::local_global, kReferenceLbfgsHistory, per_frame, *model, bundled, frames, records);
-      progress.finished("streaming", streaming_work);
-    }
-  }
-
-  // Resolution: converged surfaces at each resolution against the finest, same pose, same skinning.
-  std::vector<std::vector<std::vector<Vertices>>> surfaces_by_resolution(budget.resolutions.size());
-  std::vector<std::vector<ReferenceSolve>> solves_by_resolution(budget.resolutions.size());
-  std::vector<std::vector<PointMetrics>> metrics_by_resolution(budget.resolutions.size());
-  for (std::size_t r = 0; r < budget.resolutions.size(); ++r) {
-    const int ppf = budget.resolutions[r];
-    std::unique_ptr<ModelContext> model = makeModel(bundled, default_model, ppf, budget.resolution_reference_cap);
-    for (const std::size_t frame : resolution_frames) {
-      ReferenceSolve solve;
-      if (ppf == budget.particles_per_fibre && default_references.count(frame)) {
-        solve = default_references.at(frame);  // already solved above with the same settings
-      } else {
-        solve = solveReference(*model, bundled, frame);
-        recordReference(records, *model, bundled, frame, solve);
-      }
-      const BoneTransforms transforms = boneTransformsOf(model->simulation->bones(), gaitPose(bundled, frame));
-      CollisionWorld& world = model->world(BroadPhaseKind::octree);
-      world.setBoneTransforms(transforms);
-      metrics_by_resolution[r].push_back(measurePoint(*model, world, transforms, solve.position, solve.position, true));
-      surfaces_by_resolution[r].push_back(model->surfaces);  // measurePoint left the skinned surfaces here
-      solves_by_resolution[r].push_back(solve);
-    }
-    progress.finished("resolution " + std::to_string(ppf) + " particles per fibre",
-                      ppf == budget.particles_per_fibre
-                          ? 0.0
-                          : work(static_cast<double>(budget.resolution_reference_cap) * static_cast<double>(resolution_frames.size()), ppf));
-  }
-  const std::size_t finest = budget.resolutions.size() - 1;
-  std::printf("\nresolution (converged surfaces against %d particles per fibre):\n", budget.resolutions[finest]);
-  for (std::size_t r = 0; r < budget.resolutions.size(); ++r)
-    for (std::size_t f = 0; f < resolution_frames.size(); ++f) {
-      double squared = 0;
-      Eigen::Index vertices = 0;
-      const std::vector<Vertices>& surfaces = surfaces_by_resolution[r][f];
-      const std::vector<Vertices>& target = surfaces_by_resolution[finest][f];
-      for (std::size_t m = 0; m < surfaces.size(); ++m) {
-        squared += (surfaces[m] - target[m]).colwise().squaredNorm().sum();
-        vertices += surfaces[m].cols();
-      }
-      PointMetrics metrics = metrics_by_resolution[r][f];
-      metrics.rms_mm = 1e3 * std::sqrt(squared / static_cast<double>(vertices));
-      const ReferenceSolve& solve = solves_by_resolution[r][f];
-      records.begin();
-      addCommon(records, "resolution", "resolution " + std::to_string(budget.resolutions[r]), "local_global",
-                "quasi_static", default_label, "fixed", 0, 0, "octree", "cold", 0, budget.resolutions[r],
-                resolution_frames[f]);
-      records.add("lbfgs_history", kReferenceLbfgsHistory);
-      records.add("iterations", solve.stats.iterations);
-      records.add("wall_ms", solve.wall_ms);
-      addMetrics(records, metrics);
-      records.add("surface_vertices", static_cast<double>(vertices));
-      records.add("last_mean_displacement_m", solve.stats.mean_displacement_m);
-      records.add("tolerance_reached", solve.stats.stopping_rule_met ? 1 : 0);
-      records.add("drift_last_half_mm", solve.drift_last_half_mm);
-      records.add("drift_from_iteration", solve.drift_from_iteration);
-      records.end();
-      std::printf("  %2d per fibre, frame %2zu: surface RMS %.3f mm, volume error %.2f%% (max %.2f%%), surface "
-                  "penetration %.2f mm\n",
-                  budget.resolutions[r], resolution_frames[f], metrics.rms_mm, metrics.volume_error_pct,
-                  metrics.volume_error_max_pct, metrics.surface_penetration_mm);
-    }
-
-  printSummary("mean over " + std::to_string(frames.size()) + " poses", configs, summaries);
-  printSummary("frame " + std::to_string(check_frame) + " only, the pose whose converged shape settles best",
-               configs, check_summaries);
-
-  std::printf("speed_vs_error done in %.0f s\n", secondsSince(start));
-  return bench::finish(records, options, "speed_vs_error.json");
+  std::printf("[%6.1f s] done\n", elapsedSeconds());
+  return bench::finish(c.records, options, "speed_vs_error.json");
 }
