@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""Specifications of the benchmark report's arithmetic (tools/accuracy_report.py, tools/bench_report.py): averaging
-convergence curves over poses, picking the fastest configuration per error target, judging muscle lengths against
-issue 26's target and tabling the motions of the stability bench, on small hand-made inputs.
+"""Specifications of the benchmark report's arithmetic (tools/speed_error_report.py, tools/accuracy_report.py,
+tools/bench_report.py): the speed-against-error tables (every figure the JSON's), the fastest configuration per error
+target, judging muscle lengths against issue 26's target and tabling the motions of the stability bench, on small
+hand-made inputs.
 
     PYENV_VERSION=system /usr/bin/python3 test/report_test.py
 """
@@ -16,76 +17,88 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
 import accuracy_report  # noqa: E402
 import bench_report  # noqa: E402
 import realtime_report  # noqa: E402
+import speed_error_report  # noqa: E402
 
 
-def point(config, start, pose, iterations, wall_ms, rms_mm, **extra):
-    row = {"kind": "curve", "config": config, "solver": "verlet", "layout": "nearest_18", "dt_rule": "fixed",
-           "dt_fraction": 0.9, "broad_phase": "octree", "start": start, "pose": pose, "particles_per_fibre": 20,
-           "iterations": iterations, "wall_ms": wall_ms, "rms_mm": rms_mm, "spring_deviation": 0.01,
-           "volume_error_pct": 1.0, "max_penetration_mm": 0.1 * pose}
+def speed_row(mode, model, configuration, frame_ms, convergence, resolution, **extra):
+    row = {"scene": "thigh13", "mode": mode, "solver": "block_descent", "configuration": configuration,
+           "model": model, "spring_layout": "nearest18", "mixed_resolution": 0, "reference": 0, "iterations": 1,
+           "threads": 0, "particles_per_fibre": 20, "fibres_per_muscle": 64, "particles": 18277, "fibres": 832,
+           "frame_ms_median": frame_ms, "convergence_rms_mm": convergence, "resolution_rms_mm": resolution,
+           "resolution_max_mm": None if resolution is None else 4 * resolution, "fibre_length_rms_mm": 0.5,
+           "fibre_length_max_mm": 1.5, "model_volume_error_max_pct": 6.25, "length_ratio_worst": 0.41,
+           "length_r_worst": 0.62, "length_r_at_least_0_9": 7}
     row.update(extra)
     return row
 
 
-class ConvergenceCurves(unittest.TestCase):
-    def test_means_over_poses_and_worst_pose(self):
-        points = [point("a", "cold", 0, 10, 10.0, 4.0), point("a", "cold", 1, 10, 20.0, 2.0),
-                  point("a", "cold", 0, 20, 20.0, 1.0), point("a", "cold", 1, 20, 40.0, 3.0)]
-        curve = accuracy_report.convergence_curves(points)[("a", "cold")]
-        self.assertEqual([p["iterations"] for p in curve], [10, 20])
-        self.assertAlmostEqual(curve[0]["wall_ms"], 15.0)
-        self.assertAlmostEqual(curve[0]["rms_mm"], 3.0)
-        self.assertAlmostEqual(curve[0]["rms_max_mm"], 4.0)
-        self.assertAlmostEqual(curve[1]["rms_mm"], 2.0)
-        self.assertAlmostEqual(curve[1]["max_penetration_mm"], 0.1)
-
-    def test_drops_checkpoints_that_not_every_pose_has(self):
-        points = [point("a", "cold", 0, 10, 10.0, 4.0), point("a", "cold", 1, 10, 20.0, 2.0),
-                  point("a", "cold", 0, 20, 20.0, 0.5)]
-        curve = accuracy_report.convergence_curves(points)[("a", "cold")]
-        self.assertEqual([p["iterations"] for p in curve], [10])
-
-    def test_ignores_reference_and_resolution_points(self):
-        points = [point("a", "cold", 0, 10, 10.0, 4.0), dict(point("a", "cold", 0, 99, 1.0, 0.0), kind="reference")]
-        self.assertEqual(len(accuracy_report.convergence_curves(points)[("a", "cold")]), 1)
-
-
-class FastestToTarget(unittest.TestCase):
+class SpeedAgainstError(unittest.TestCase):
     def setUp(self):
-        # "slow" reaches 2 mm at 50 ms, "fast" at 30 ms but never reaches 1 mm; warm runs are separate.
-        self.points = [point("slow", "cold", 0, 10, 50.0, 2.0), point("slow", "cold", 0, 40, 200.0, 0.9),
-                       point("fast", "cold", 0, 10, 30.0, 1.5), point("fast", "cold", 0, 40, 120.0, 1.2),
-                       point("slow", "warm", 0, 5, 5.0, 1.8)]
-        self.curves = accuracy_report.convergence_curves(self.points)
+        base = speed_error_report.BASE_MODEL
+        self.rows = [
+            speed_row("stream", base, "block_descent 1 sweep", 10.5, 1.264, 1.239),
+            speed_row("stream", base, "block_descent 2 sweeps", 20.6, 0.768, 0.589),
+            speed_row("stream", base, "block_descent 4 sweeps", 38.5, 0.901, 0.28),
+            speed_row("stream", base, "converged (60 sweeps a frame)", 300.0, None, 0.15, reference=1,
+                      reference_sweeps=60, reference_residual_median=0.02, reference_moves_mm=0.011),
+            speed_row("cold", base, "block_descent 10 sweeps", 84.7, 0.155, None, model_volume_error_max_pct=None,
+                      length_ratio_worst=None, length_r_worst=None, length_r_at_least_0_9=None),
+        ]
 
-    def test_picks_the_first_checkpoint_at_or_below_the_target(self):
-        config, reached = accuracy_report.fastest_to_target(self.curves, 2.0, "cold")
-        self.assertEqual((config, reached["iterations"], reached["wall_ms"]), ("fast", 10, 30.0))
-        config, reached = accuracy_report.fastest_to_target(self.curves, 1.0, "cold")
-        self.assertEqual((config, reached["iterations"]), ("slow", 40))
+    def test_every_figure_of_the_configuration_table_is_the_jsons(self):
+        lines = speed_error_report.every_configuration_lines(self.rows)
+        self.assertIn("| stream | 20 x 64 nearest18 | `block_descent 1 sweep` | 0 | 18277 | 10.5 | 1.264 | "
+                      "1.24 / 4.96 | 0.50 | 6.25 | 0.41 | 0.62 | 7 |", lines)
+        # Not measured stays absent: a dash, never 0.
+        self.assertIn("| cold | 20 x 64 nearest18 | `block_descent 10 sweeps` | 0 | 18277 | 84.7 | 0.155 | - / - | "
+                      "0.50 | - | - | - | - |", lines)
+        self.assertEqual(len(lines), 2 + len(self.rows))
 
-    def test_start_modes_are_separate_and_unreached_targets_say_so(self):
-        config, reached = accuracy_report.fastest_to_target(self.curves, 2.0, "warm")
-        self.assertEqual((config, reached["wall_ms"]), ("slow", 5.0))
-        self.assertIsNone(accuracy_report.fastest_to_target(self.curves, 0.5, "cold"))
-        lines, choices, _ = accuracy_report.defaults_table(self.points)
-        self.assertIsNone(choices[(1.0, "warm")])
-        self.assertEqual(choices[(1.0, "cold")][0], "slow")
-        self.assertIn("| 1 mm | cold | `slow` | 40 | 200.0 |", "\n".join(lines))
-        self.assertIn("| 1 mm | warm | none reached it |", "\n".join(lines))
+    def test_the_fastest_configuration_meets_its_target_or_none_is_named(self):
+        best = speed_error_report.fastest(self.rows, "stream", "convergence_rms_mm", 1.0)
+        self.assertEqual(best["configuration"], "block_descent 2 sweeps")
+        self.assertIsNone(speed_error_report.fastest(self.rows, "stream", "convergence_rms_mm", 0.1))
+        lines = speed_error_report.fastest_lines(self.rows)
+        self.assertIn("| convergence (RMS to the same model converged) | 1 mm | stream | `block_descent 2 sweeps` | "
+                      "20 x 64 nearest18 | 20.6 | 0.768 |", lines)
+        self.assertIn("| convergence (RMS to the same model converged) | 0.2 mm | stream | none reached it | - | - | - |",
+                      lines)
 
+    def test_a_curve_whose_error_rises_with_cost_is_named(self):
+        text = "\n".join(speed_error_report.curve_lines(self.rows))
+        self.assertIn("**rises** with cost: `block_descent 2 sweeps` 0.768 mm -> `block_descent 4 sweeps` 0.901 mm", text)
 
-class Plots(unittest.TestCase):
-    def test_speed_error_section_writes_its_plots(self):
-        points = [point("a", start, pose, it, it * 2.0, 8.0 / it) for start in ("cold", "warm") for pose in (0, 1)
-                  for it in (1, 2, 4, 8)]
-        points += [{"kind": "resolution", "pose": 0, "particles_per_fibre": ppf, "rms_mm": 80.0 / ppf}
-                   for ppf in (20, 40, 80)]
+    def test_the_peer_is_set_against_our_fastest_configuration_as_close_to_the_converged_stream(self):
+        peer = speed_row("stream", speed_error_report.BASE_MODEL, "bullet soft body, 4 position iterations", 50.0, 1.0,
+                         None, solver="bullet_soft_body", iterations=4, threads=1)
+        text = "\n".join(speed_error_report.peer_lines(self.rows + [peer]))
+        self.assertIn("1.000 mm RMS from the converged stream; ours (`block_descent 2 sweeps`, 0.768 mm, 1.3x closer) "
+                      "takes 20.6 ms: the peer takes **2.4x** our time (target >= 5x for the same distance: missed by 2.1x)", text)
+        self.assertIn("not measured", "\n".join(speed_error_report.peer_lines(self.rows)))
+
+    def test_the_per_muscle_model_is_judged_against_uniform_20(self):
+        base = speed_error_report.BASE_MODEL
+        mixed = "per muscle within 1.20 mm"
+        rows = self.rows + [
+            speed_row("stream", mixed, "block_descent 1 sweep", 6.0, 1.3, 1.25, mixed_resolution=1),
+            {"solver": "per_muscle", "model": base, "muscle": "a", "mixed_resolution": 0,
+             "particles_per_fibre": 20, "fibres_per_muscle": 64, "surface_rms_mm_worst_frame": 1.2},
+            {"solver": "per_muscle", "model": mixed, "muscle": "a", "mixed_resolution": 1,
+             "particles_per_fibre": 10, "fibres_per_muscle": 64, "surface_rms_mm_worst_frame": 1.1}]
+        table, model = speed_error_report.per_muscle_lines(rows)
+        self.assertEqual(model, mixed)
+        self.assertIn("| a | 10 x 64 | 1.10 | 1.20 |", table)
+        verdict = "\n".join(speed_error_report.per_muscle_verdict(rows, model))
+        self.assertIn("6.0 ms against 10.5 ms for uniform 20 x 64 (**1.75x**; target >= 1.5x: met)", verdict)
+
+    def test_the_section_writes_its_plots_and_names_the_machines_bandwidth(self):
         with tempfile.TemporaryDirectory() as directory:
-            lines, _ = accuracy_report.speed_error_section(points, pathlib.Path(directory))
-            for name in ("speed_vs_error.png", "error_vs_resolution.png"):
-                self.assertGreater((pathlib.Path(directory) / name).stat().st_size, 1000, name)
-        self.assertTrue(any("| 40 | 2.00 |" in line for line in lines))
+            lines = speed_error_report.section(self.rows, pathlib.Path(directory),
+                                               realtime_rows=[{"bandwidth_gbs": 21.7, "floor_threads": 2}])
+            for name in ("convergence", "resolution", "volume"):
+                path = pathlib.Path(directory) / f"speed_vs_error_{name}.png"
+                self.assertGreater(path.stat().st_size, 1000, name)
+        self.assertIn("21.7 GB/s on 2 threads", "\n".join(lines))
 
 
 def length_row(muscle, r, product_mm, reference_mm, slopes=None, reference_slopes=None):
