@@ -147,6 +147,13 @@ std::vector<double> fibreLengthsOf(const DeformationPipeline& pipeline) {
   return out;
 }
 
+// The last frame's per-muscle mean belly fibre lengths of a series just appended to.
+std::vector<double> latestBellyLengths(const bench::MuscleLengths& lengths) {
+  std::vector<double> out;
+  for (const std::vector<double>& series : lengths.belly) out.push_back(series.back());
+  return out;
+}
+
 // Largest |volume error| (% of rest) over the frame's muscles; absent without metrics.
 std::optional<double> volumeErrorOf(const FrameResult& frame) {
   if (!frame.has_metrics) return std::nullopt;
@@ -283,7 +290,7 @@ References referencesOf(Context& c, const ModelVariant& v) {
     bench::addLengthsOf(pipeline, r.lengths);
     if (checked) {
       r.stream_surfaces.push_back(frame.surfaces);
-      r.stream_fibre_lengths.push_back(fibreLengthsOf(pipeline));
+      r.stream_fibre_lengths.push_back(latestBellyLengths(r.lengths));
     }
   }
   // The last frame given as many sweeps again (nothing is streamed after it).
@@ -464,18 +471,34 @@ Config blockDescent(int sweeps, int threads = 0) {
   return config;
 }
 
+// A point of `mode` for a configuration, before anything is measured.
+Point pointOf(const std::string& mode, const Config& config) {
+  Point p;
+  p.mode = mode;
+  p.solver = toString(config.kind);
+  p.configuration = config.label;
+  p.iterations = config.iterations;
+  p.threads = config.threads;
+  return p;
+}
+
+// The local/global solver's quasi-Newton mode (L-BFGS, history 16), no drag.
+Config localGlobal(int iterations) {
+  Config config;
+  config.label = "local_global lbfgs16 " + std::to_string(iterations) + " iterations";
+  config.kind = SolverKind::local_global;
+  config.iterations = iterations;
+  config.lbfgs_history = 16;
+  return config;
+}
+
 void measureStream(Context& c, const ModelVariant& v, const References& own, const Config& config) {
   const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
   StreamSessionSettings stream_settings = c.node.stream;
   if (!config.node_stopping) stream_settings.stopping = sweepsOf(c.node, config.iterations);
   StreamSession session(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
                         pipelineFor(c.node, v, config.kind, config.threads, config.lbfgs_history), stream_settings);
-  Point p;
-  p.mode = "stream";
-  p.solver = toString(config.kind);
-  p.configuration = config.label;
-  p.iterations = config.iterations;
-  p.threads = config.threads;
+  Point p = pointOf("stream", config);
   session.continueFrom(bench::streamStamp(0), c.gait[0], own.stream[0]);
   bench::addLengthsOf(session.pipeline(), p.lengths);
   for (std::size_t f = 1; f < c.gait.size(); ++f) {
@@ -492,7 +515,7 @@ void measureStream(Context& c, const ModelVariant& v, const References& own, con
     bench::addLengthsOf(session.pipeline(), p.lengths);
     if (checked && frame) {
       p.surface.add(frame->surfaces, c.finest->stream_surfaces[k]);
-      p.fibre_length.add(fibreLengthsOf(session.pipeline()), c.finest->stream_fibre_lengths[k]);
+      p.fibre_length.add(latestBellyLengths(p.lengths), c.finest->stream_fibre_lengths[k]);
     }
   }
   record(c, v, own, p);
@@ -502,12 +525,7 @@ void measureCold(Context& c, const ModelVariant& v, const References& own, const
   const std::vector<Muscle> muscles = musclesOf(c.bundled, c.fibre_sets, v);
   DeformationPipeline pipeline(c.bundled.scene.muscle_descriptions, muscles, c.bundled.scene.bones,
                                pipelineFor(c.node, v, config.kind, config.threads, config.lbfgs_history));
-  Point p;
-  p.mode = "cold";
-  p.solver = toString(config.kind);
-  p.configuration = config.label;
-  p.iterations = config.iterations;
-  p.threads = config.threads;
+  Point p = pointOf("cold", config);
   for (std::size_t k = 0; k < c.poses.size(); ++k) {
     const FrameResult& frame =
         pipeline.solve(c.gait[c.poses[k]], StartMode::cold, sweepsOf(c.node, config.iterations), true, true);
@@ -667,20 +685,8 @@ int main(int argc, char** argv) {
         verlet.iterations = iterations;
         stream.push_back(verlet);
       }
-      for (const int iterations : {10, 30}) {
-        Config local_global;
-        local_global.label = "local_global lbfgs16 " + std::to_string(iterations) + " iterations";
-        local_global.kind = SolverKind::local_global;
-        local_global.iterations = iterations;
-        local_global.lbfgs_history = 16;
-        stream.push_back(local_global);
-      }
-      Config service;
-      service.label = "local_global lbfgs16 120 iterations";
-      service.kind = SolverKind::local_global;
-      service.iterations = 120;
-      service.lbfgs_history = 16;
-      cold.push_back(service);
+      for (const int iterations : {10, 30}) stream.push_back(localGlobal(iterations));
+      cold.push_back(localGlobal(120));
     }
     return std::make_pair(stream, cold);
   };
