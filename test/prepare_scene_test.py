@@ -141,5 +141,21 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertIn("nowhere.stl", entries["lost"]["error"])
 
 
+class RosrunOnAFreshCheckout(unittest.TestCase):
+    """`rosrun` searches the package's folder with `find -L`: a workspace whose package folder links back to the
+    repository that holds the workspace made it print "File system loop detected" on every run."""
+
+    def test_rosrun_runs_the_tool_without_a_word_on_stderr(self):
+        if not os.environ.get("ROS_PACKAGE_PATH"):
+            self.skipTest("no ROS environment (source the workspace's devel/setup.bash): rosrun cannot find packages")
+        rosrun = shutil.which("rosrun")
+        self.assertIsNotNone(rosrun, "rosrun is not installed (tools/setup.sh installs it)")
+        run = subprocess.run([rosrun, "muscle_deformation", "prepare_scene", "--help"], capture_output=True, text=True,
+                             timeout=120)
+        self.assertEqual(run.returncode, 0, run.stderr)
+        self.assertIn("usage: prepare_scene", run.stdout)
+        self.assertEqual(run.stderr, "")
+
+
 if __name__ == "__main__":
     unittest.main()
