@@ -66,9 +66,9 @@ class PrepareSceneEndToEnd(unittest.TestCase):
     def tearDown(self):
         shutil.rmtree(self.raw)
 
-    def prepare(self, *muscles):
+    def prepare(self, *muscles, options=()):
         command = [TOOL, "--urdf", SMALL_HIP, "--package-dir", PACKAGE, "--out", self.out, "--scale", "0.001",
-                   "--fibres", "16", "--min-voxels", "20000"]
+                   "--fibres", "16", "--min-voxels", "20000"] + list(options)
         for muscle in muscles:
             command += ["--muscle", muscle]
         return subprocess.run(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True,
@@ -117,6 +117,37 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertEqual(run.returncode, 1)
         self.assertIn("is not NAME:MESH:ORIGIN_LINK:INSERTION_LINK", run.stderr)
         self.assertIn("usage: prepare_scene", run.stderr)
+
+    def test_attachment_sites_from_the_command_line_and_from_an_opensim_model_go_into_the_scene(self):
+        osim = os.path.join(PACKAGE, "data", "opensim", "gait2392_millard2012muscle.osim")
+        run = self.prepare("belly:%s/belly_mm.obj:pelvis@0,0.04,0.115:femur_r" % self.raw,
+                           "twin:%s/belly_mm.obj:pelvis:femur_r" % self.raw,
+                           options=["--osim", osim, "--osim-muscle", "twin=add_long_r"])
+        self.assertEqual(run.returncode, 0, run.stdout + run.stderr)
+        self.assertIn("muscle 'belly': repaired", run.stdout)
+        self.assertIn("1 attachment site\n", run.stdout)
+        # the small hip is not gait2392's skeleton: its sites lie far from the bones, and the tool says so
+        self.assertIn("2 attachment sites (2 of them more than 10 mm from their bone", run.stdout)
+        scene = self.read("scene.yaml")
+        self.assertIn('  origin_path:\n  - {link: "pelvis", point: [0, 0.04, 0.115]}\n  insertion_path: []', scene)
+        self.assertIn('  origin_path:\n  - {link: "pelvis", point: [-0.0316, -0.0836, 0.0169]}\n'
+                      '  insertion_path:\n  - {link: "femur_r", point: [0.005, -0.2111, 0.0234]}\n'
+                      '  reference_muscles: ["add_long_r"]', scene)
+        self.assertIn('osim: "%s"' % os.path.relpath(osim, self.out), scene)
+        self.assertIn("add_long_r-P2 (add_long_r) on `femur_r`", self.read("report.md"))
+
+    def test_bad_attachment_site_options_are_refused_naming_the_problem(self):
+        belly = "belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw
+        osim = os.path.join(PACKAGE, "data", "opensim", "gait2392_millard2012muscle.osim")
+        for muscles, options, expected in [
+                (["belly:%s/belly_mm.obj:pelvis@1,2:femur_r" % self.raw], [], "LINK@x,y,z"),
+                ([belly], ["--osim-muscle", "belly=add_long_r"], "--osim-muscle needs --osim"),
+                ([belly], ["--osim", osim, "--osim-muscle", "belly"], "is not NAME=OTHER"),
+                ([belly], ["--osim", osim, "--osim-muscle", "belly=nothing_r"], "has no muscle 'nothing_r'"),
+                ([belly], ["--osim", os.path.join(self.raw, "none.osim")], "none.osim")]:
+            run = self.prepare(*muscles, options=options)
+            self.assertEqual(run.returncode, 1, expected)
+            self.assertIn(expected, run.stderr)
 
     def test_generate_fibres_remakes_a_scenes_fibres_past_a_muscle_that_fails_and_finds_packages_on_its_own(self):
         self.assertEqual(self.prepare("belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw).returncode, 0)

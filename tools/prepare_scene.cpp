@@ -1,7 +1,8 @@
 // prepare_scene: a scene directory the node runs as it is, from segmented muscle surfaces and a skeleton URDF.
 //
 //   rosrun muscle_deformation prepare_scene --urdf SKELETON.urdf --muscle NAME:MESH:ORIGIN_LINK:INSERTION_LINK
-//       [--muscle ...] --out DIR [--scale S] [--frame LINK] [--package-dir DIR] [fibre options]
+//       [--muscle ...] --out DIR [--scale S] [--frame LINK] [--package-dir DIR] [attachment site options]
+//       [fibre options]
 //
 // The work is the preprocessing library's (scene_preparation.hpp); this reads the command line and prints a summary.
 // Exit status: 0 = every muscle prepared and every bone usable (fibre checks that failed are in report.md), 1 = a muscle
@@ -39,7 +40,18 @@ const std::string kUsage = std::string(
     "  --scale S          multiply the muscle files' coordinates by S to get metres (default 1; 0.001 for mm)\n"
     "  --frame LINK       the link whose frame the muscle files use at the URDF's zero configuration (default: the\n"
     "                     URDF's root link); the node's fixed_frame must be this link or one that coincides with it\n"
-    "  --package-dir DIR  a package folder for package:// URIs (others are looked up under ROS_PACKAGE_PATH)\n") +
+    "  --package-dir DIR  a package folder for package:// URIs (others are looked up under ROS_PACKAGE_PATH)\n"
+    "Attachment sites (where the tendons attach; without them a fibre end away from its bone hangs from the bone's\n"
+    "nearest point, and a joint between the belly and the real attachment hardly changes the muscle's length):\n"
+    "  LINK@x,y,z         in --muscle, either link may carry its site: metres in that link's frame, e.g.\n"
+    "                     semitendinosus:st.stl:pelvis@-0.12,-0.1,-0.07:tibia_r@-0.03,-0.05,-0.02\n"
+    "  --osim MODEL.osim  an OpenSim model of the same skeleton (each body's frame is its link's): a muscle takes\n"
+    "                     the path points of the OpenSim muscle of its name (its origin, via and insertion points,\n"
+    "                     conditional and moving ones at every coordinate 0); a site given in --muscle wins\n"
+    "  --osim-muscle NAME=OSIM_MUSCLE   which OpenSim muscle a muscle takes its points from (repeatable)\n"
+    "  --osim-body BODY=LINK            the URDF link of an OpenSim body named otherwise (repeatable)\n"
+    "  The points go into scene.yaml (origin_path, insertion_path); report.md gives each one's distance to its\n"
+    "  bone and the via points the belly covers (left out).\n") +
     md::tools::kFibreOptionsUsage +
     "  --help             this text\n"
     "Exit status: 0 = every muscle prepared and every bone usable (failed fibre checks are listed in report.md and\n"
@@ -47,9 +59,10 @@ const std::string kUsage = std::string(
     "input.\n";
 
 int run(int argc, char** argv) {
-  std::set<std::string> value_options = {"--urdf", "--muscle", "--out", "--scale", "--frame", "--package-dir"};
+  std::set<std::string> value_options = {"--urdf",        "--muscle", "--out",         "--scale",    "--frame",
+                                         "--package-dir", "--osim",   "--osim-muscle", "--osim-body"};
   value_options.insert(md::tools::kFibreOptionNames.begin(), md::tools::kFibreOptionNames.end());
-  const md::tools::Arguments args(argc, argv, value_options, {}, {"--muscle"});
+  const md::tools::Arguments args(argc, argv, value_options, {}, {"--muscle", "--osim-muscle", "--osim-body"});
   for (const char* required : {"--urdf", "--muscle", "--out"})
     if (!args.has(required)) throw UsageError(std::string(required) + " is required");
 
@@ -77,6 +90,18 @@ int run(int argc, char** argv) {
   request.resolve_uri =
       md::tools::packageUriResolver(packages, fs::absolute(request.urdf_file).parent_path().string());
   request.fibres = md::tools::fibreOptions(args);
+  if (args.has("--osim")) request.osim.osim_file = args.value("--osim");
+  for (const auto& [option, map] : {std::pair{"--osim-muscle", &request.osim.muscles},
+                                    std::pair{"--osim-body", &request.osim.bodies}}) {
+    if (args.has(option) && !args.has("--osim")) throw UsageError(std::string(option) + " needs --osim");
+    for (const std::string& entry : args.values(option)) {
+      const std::size_t equals = entry.find('=');
+      if (equals == std::string::npos || equals == 0 || equals + 1 == entry.size())
+        throw UsageError(std::string(option) + " '" + entry + "' is not NAME=OTHER");
+      if (!map->emplace(entry.substr(0, equals), entry.substr(equals + 1)).second)
+        throw UsageError(std::string(option) + " names '" + entry.substr(0, equals) + "' twice");
+    }
+  }
 
   const md::ScenePreparation scene =
       md::prepareScene(request, [](const std::string& line) { std::cout << line << std::endl; });

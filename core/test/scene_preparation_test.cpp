@@ -5,6 +5,7 @@
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/scene/opensim_model.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
@@ -221,4 +222,186 @@ TEST_F(ScenePreparationTest, TheViewFramesTheSceneInItsFrameAndShowsTheBonesMark
   EXPECT_CONTAINS(view, "Marker Topic: /muscle_deformation/bones");
   // Focal point: the centre of the muscle and its two bones (x, y 0; z from -0.03 to 0.13).
   EXPECT_CONTAINS(view, "Focal Point:\n        X: 0.000\n        Y: 0.000\n        Z: 0.050");
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Attachment sites: from the command line (LINK@x,y,z) and from an OpenSim model of the same skeleton (--osim)
+
+namespace {
+
+const fs::path kGait2392 = fs::path(MD_PACKAGE_DIR) / "data" / "opensim" / "gait2392_millard2012muscle.osim";
+
+}  // namespace
+
+TEST(ScenePreparationCommandLine, EitherLinkMayCarryItsSiteInMetresInTheLinksFrame) {
+  const md::MuscleSource source = md::parseMuscleSource("st:/data/st.stl:pelvis@0.1,-0.2,3e-2:tibia_r");
+  EXPECT_EQ(source.origin_link, "pelvis");
+  ASSERT_TRUE(source.origin_site.has_value());
+  EXPECT_TRUE(source.origin_site->isApprox(Eigen::Vector3d(0.1, -0.2, 0.03)));
+  EXPECT_EQ(source.insertion_link, "tibia_r");
+  EXPECT_FALSE(source.insertion_site.has_value());
+  EXPECT_TRUE(md::parseMuscleSource("st:st.stl:pelvis:tibia_r@0,0,-0.5").insertion_site->isApprox(
+      Eigen::Vector3d(0, 0, -0.5)));
+
+  using md::testing::errorMessageOf;
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([] { md::parseMuscleSource("st:st.stl:pelvis@1,2:tibia_r"); }),
+                  "LINK@x,y,z");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([] { md::parseMuscleSource("st:st.stl:pelvis@1,2,3,4:tibia_r"); }),
+                  "LINK@x,y,z");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([] { md::parseMuscleSource("st:st.stl:pelvis@1,2,3mm:tibia_r"); }),
+                  "'3mm' is not a number");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([] { md::parseMuscleSource("st:st.stl:pelvis@nan,0,0:tibia_r"); }),
+                  "finite");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([] { md::parseMuscleSource("st:st.stl:@1,2,3:tibia_r"); }),
+                  "the link is empty");
+}
+
+// A straight belly along z from 0 to 0.1 m and a path along it from below to above: the points before the belly's
+// origin end go to the origin's tendon, those past its insertion end to the insertion's, those it covers (inside it,
+// or beside it within its extent) are left out and said so.
+TEST(AttachmentSites, ViaPointsGoToTheTendonOnTheirSideOfTheBellyAndThoseTheBellyCoversAreLeftOut) {
+  const md::Muscle belly = md::makeSpindleMuscle("belly", {0, 0, 0.0}, {0, 0, 0.1}, 0.012, 1.0, 2, 10, 24, 30);
+  const std::map<std::string, Eigen::Isometry3d> rest = {{"lower", Eigen::Isometry3d::Identity()},
+                                                         {"upper", Eigen::Isometry3d(Eigen::Translation3d(0, 0, 0.2))}};
+  using Role = md::PathCandidate::Role;
+  const std::vector<md::PathCandidate> path = {
+      {"O", {"lower", {0, 0, -0.05}}, Role::origin_site},
+      {"V1", {"lower", {0.01, 0, -0.02}}, Role::via},
+      {"V2", {"lower", {0, 0, 0.05}}, Role::via},       // inside the belly
+      {"V3", {"lower", {0.03, 0, 0.06}}, Role::via},    // beside it, within its extent
+      {"V4", {"upper", {0.0, 0.01, -0.07}}, Role::via},  // z = 0.13, past its insertion end
+      {"I", {"upper", {0, 0, -0.04}}, Role::insertion_site}};
+  const md::TendonPaths paths = md::placeAgainstBelly(path, belly.surface, belly.fibres, rest, {});
+  ASSERT_EQ(paths.origin_path.size(), 2u);
+  EXPECT_EQ(paths.origin_path[0].label, "O");
+  EXPECT_EQ(paths.origin_path[1].label, "V1");
+  ASSERT_EQ(paths.insertion_path.size(), 2u);
+  EXPECT_EQ(paths.insertion_path[0].label, "V4");
+  EXPECT_EQ(paths.insertion_path[1].label, "I");
+  EXPECT_EQ(paths.insertion_path[1].site.link, "upper");
+  EXPECT_TRUE(paths.insertion_path[1].site.point.isApprox(Eigen::Vector3d(0, 0, -0.04)));  // in its link's frame
+  EXPECT_CONTAINS(paths.source(), "V2 left out: inside the belly");
+  EXPECT_CONTAINS(paths.source(), "V3 left out: within the belly's extent along the path");
+
+  // A site inside the belly: its side gets no tendon path (the fibre ends there lie on the bone).
+  std::vector<md::PathCandidate> inside = path;
+  inside.front().site.point = {0, 0, 0.01};
+  const md::TendonPaths without_origin = md::placeAgainstBelly(inside, belly.surface, belly.fibres, rest, {});
+  EXPECT_TRUE(without_origin.origin_path.empty());
+  EXPECT_EQ(without_origin.insertion_path.size(), 2u);
+  EXPECT_CONTAINS(without_origin.source(), "O lies inside the belly");
+}
+
+TEST_F(ScenePreparationTest, SitesGivenWithTheMuscleGoIntoTheSceneAndTheNodeReadsThemInTheSceneFrame) {
+  md::MuscleSource muscle = goodMuscle();
+  muscle.origin_site = Eigen::Vector3d(0, 0.04, 0.115);     // on the pelvis box's side
+  muscle.insertion_site = Eigen::Vector3d(0.04, 0, -0.015);  // on the femur box's side
+  const md::ScenePreparation scene = md::prepareScene(request({muscle}));
+  ASSERT_TRUE(scene.muscles.at(0).prepared()) << scene.muscles[0].refusal;
+  const md::TendonPaths& sites = scene.muscles[0].sites;
+  ASSERT_EQ(sites.origin_path.size(), 1u);
+  ASSERT_EQ(sites.insertion_path.size(), 1u);
+  EXPECT_NEAR(sites.origin_path[0].bone_distance_m, 0.0, 1e-9);  // on the bone's surface
+  EXPECT_NEAR(sites.insertion_path[0].bone_distance_m, 0.0, 1e-9);
+
+  const md::SceneDescription description = md::loadSceneDescription((out_ / md::kSceneFileName).string());
+  ASSERT_EQ(description.muscles.size(), 1u);
+  ASSERT_EQ(description.muscles[0].origin_path.size(), 1u);
+  EXPECT_EQ(description.muscles[0].origin_path[0].link, "pelvis");
+  EXPECT_TRUE(description.muscles[0].origin_path[0].point.isApprox(Eigen::Vector3d(0, 0.04, 0.115)));
+  ASSERT_EQ(description.muscles[0].insertion_path.size(), 1u);
+  EXPECT_EQ(description.muscles[0].insertion_path[0].link, "femur_r");
+  const md::Scene loaded = md::loadScene(description, md::Skeleton::fromUrdfFile(kSmallHip.string()), packageResolver());
+  ASSERT_EQ(loaded.muscles.at(0).insertion_path.size(), 1u);
+  EXPECT_TRUE(loaded.muscles[0].insertion_path[0].point.isApprox(Eigen::Vector3d(0.04, 0, -0.015)));
+
+  const std::string report = readText(out_ / md::kReportFileName);
+  EXPECT_CONTAINS(report, "insertion: insertion site (command line) on `femur_r` at (0.0400, 0.0000, -0.0150) m, ");
+}
+
+TEST_F(ScenePreparationTest, SitesWithoutAnyAreSaidToHangFromTheNearestPoint) {
+  md::prepareScene(request({goodMuscle()}));
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "Attachment sites: none given");
+  EXPECT_EQ(readText(out_ / md::kSceneFileName).find("origin_path"), std::string::npos);
+}
+
+// The bundled gait2392 model, read as a model of the small hip's skeleton (its pelvis and femur_r bodies are the
+// hip's links of those names): each point of the mapped OpenSim muscle is a site or a via point in its body's frame,
+// or is left out saying why.
+TEST_F(ScenePreparationTest, AnOpenSimModelGivesEachMappedMuscleItsPathPointsInTheirBodiesFrames) {
+  md::ScenePreparationRequest asked = request({goodMuscle()});
+  asked.osim.osim_file = kGait2392.string();
+  asked.osim.muscles["spindle"] = "iliacus_r";
+  std::string said;
+  const md::ScenePreparation scene = md::prepareScene(asked, [&](const std::string& line) { said += line + "\n"; });
+  ASSERT_TRUE(scene.muscles.at(0).prepared()) << scene.muscles[0].refusal;
+  const md::TendonPaths& sites = scene.muscles[0].sites;
+  EXPECT_EQ(sites.reference_muscles, std::vector<std::string>{"iliacus_r"});
+
+  const md::OpenSimModel model = md::OpenSimModel::fromFile(kGait2392.string());
+  md::CoordinateValues zero;
+  for (const md::OpenSimCoordinate& coordinate : model.coordinates()) zero[coordinate.name] = 0.0;
+  const std::vector<md::MusclePathPoint> points = model.activePathPoints("iliacus_r", zero);
+  ASSERT_GE(points.size(), 3u);
+  ASSERT_FALSE(sites.origin_path.empty());
+  EXPECT_EQ(sites.origin_path.front().site.link, points.front().body);
+  EXPECT_TRUE(sites.origin_path.front().site.point.isApprox(points.front().location_in_body));
+  ASSERT_FALSE(sites.insertion_path.empty());
+  EXPECT_EQ(sites.insertion_path.back().site.link, points.back().body);
+  EXPECT_TRUE(sites.insertion_path.back().site.point.isApprox(points.back().location_in_body));
+  const std::string source = sites.source();
+  for (const md::MusclePathPoint& point : points) {
+    const auto is_point = [&](const md::PreparedSite& site) { return site.label.rfind(point.name, 0) == 0; };
+    const bool kept = std::any_of(sites.origin_path.begin(), sites.origin_path.end(), is_point) ||
+                      std::any_of(sites.insertion_path.begin(), sites.insertion_path.end(), is_point);
+    EXPECT_TRUE(kept || source.find(point.name + " (iliacus_r) left out") != std::string::npos) << point.name;
+  }
+
+  const md::SceneDescription description = md::loadSceneDescription((out_ / md::kSceneFileName).string());
+  EXPECT_EQ(description.muscles.at(0).reference_muscles, std::vector<std::string>{"iliacus_r"});
+  EXPECT_EQ(description.muscles[0].origin_path.size(), sites.origin_path.size());
+  EXPECT_EQ(description.muscles[0].insertion_path.size(), sites.insertion_path.size());
+  EXPECT_EQ(fs::weakly_canonical(md::resolveScenePath(description, description.reference_model.osim_file)),
+            fs::weakly_canonical(kGait2392));
+  // The small hip is not gait2392's skeleton: the report and the tool's output flag sites that lie far from their bone.
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "far from the bone");
+  EXPECT_GT(sites.farFromBone(), 0);
+  EXPECT_CONTAINS(said, "more than 10 mm from their bone");
+}
+
+TEST_F(ScenePreparationTest, AnOpenSimPointOnABodyWithoutABoneRefusesItsMuscleUntilTheBodyIsMapped) {
+  md::ScenePreparationRequest asked = request({goodMuscle()});
+  asked.osim.osim_file = kGait2392.string();
+  asked.osim.muscles["spindle"] = "semiten_r";  // from the pelvis to the tibia, which the small hip lacks
+  md::ScenePreparation scene = md::prepareScene(asked);
+  EXPECT_FALSE(scene.muscles.at(0).prepared());
+  EXPECT_CONTAINS(scene.muscles[0].refusal, "lies on body 'tibia_r'");
+  EXPECT_CONTAINS(scene.muscles[0].refusal, "--osim-body tibia_r=LINK");
+
+  asked.osim.bodies["tibia_r"] = "femur_r";
+  scene = md::prepareScene(asked);
+  ASSERT_TRUE(scene.muscles.at(0).prepared()) << scene.muscles[0].refusal;
+  ASSERT_FALSE(scene.muscles[0].sites.insertion_path.empty());
+  EXPECT_EQ(scene.muscles[0].sites.insertion_path.back().site.link, "femur_r");
+}
+
+TEST_F(ScenePreparationTest, OpenSimMapsThatNameWhatDoesNotExistAreRefusedBeforeAnyWork) {
+  using md::testing::errorMessageOf;
+  md::ScenePreparationRequest asked = request({goodMuscle()});
+  asked.osim.osim_file = kGait2392.string();
+  asked.osim.muscles["spindle"] = "no_such_muscle_r";
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::prepareScene(asked); }),
+                  "has no muscle 'no_such_muscle_r'");
+  asked.osim.muscles = {{"nobody", "iliacus_r"}};
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::prepareScene(asked); }),
+                  "no muscle 'nobody' is given with --muscle");
+  asked.osim.muscles.clear();
+  asked.osim.bodies = {{"humerus", "pelvis"}};
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::prepareScene(asked); }), "has no body 'humerus'");
+  asked.osim.bodies = {{"tibia_r", "shin"}};
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::prepareScene(asked); }),
+                  "'shin' is not a link of the URDF");
+  asked.osim.bodies.clear();
+  asked.osim.osim_file = (raw_ / "missing.osim").string();
+  EXPECT_CONTAINS(errorMessageOf<md::SceneError>([&] { md::prepareScene(asked); }), "missing.osim");
 }

@@ -22,6 +22,13 @@ std::string fixed(double value, int decimals) {
   return out.str();
 }
 
+// A site coordinate in metres to a tenth of a micrometre, without trailing zeros.
+std::string coordinate(double metres) {
+  std::ostringstream out;
+  out << std::setprecision(7) << metres;
+  return out.str();
+}
+
 std::string millimetres(double metres) { return fixed(metres * 1e3, 1) + " mm"; }
 
 std::string colourList(const std::array<float, 4>& colour) {
@@ -51,6 +58,10 @@ std::string sceneYaml(const ScenePreparation& p) {
     << "# relative to this file's folder.\n"
     << "urdf: " << doubleQuoted(urdfFromSceneDirectory(p)) << "\n"
     << "frame: " << doubleQuoted(p.frame) << "\n";
+  if (!p.osim_file.empty())
+    y << "# The OpenSim model of the same skeleton the attachment sites come from (each body's frame its link's).\n"
+      << "reference_model:\n  osim: " << doubleQuoted(fs::path(p.osim_file).lexically_relative(p.out_dir).string())
+      << "\n";
   bool any_stand_in = false;
   for (const BoneMeshCheck& bone : p.bone_meshes) any_stand_in = any_stand_in || !bone.stand_in.empty();
   if (any_stand_in) {
@@ -72,6 +83,19 @@ std::string sceneYaml(const ScenePreparation& p) {
       << "  color: " << colourList(m.colour) << "\n"
       << "  rest_volume_ml: " << fixed(m.volume_m3 * 1e6, 1) << "\n"
       << "  source: " << doubleQuoted(fs::absolute(m.source.mesh_file).lexically_normal().string()) << "\n";
+    if (m.sites.empty() && m.sites.reference_muscles.empty()) continue;
+    // The tendons' paths, each point in its link's frame (metres): the node runs the fibre ends' tendons through them.
+    for (const auto& [key, path] : {std::pair{"origin_path", &m.sites.origin_path},
+                                    std::pair{"insertion_path", &m.sites.insertion_path}}) {
+      y << "  " << key << ":" << (path->empty() ? " []" : "") << "\n";
+      for (const PreparedSite& site : *path)
+        y << "  - {link: " << doubleQuoted(site.site.link) << ", point: [" << coordinate(site.site.point.x()) << ", "
+          << coordinate(site.site.point.y()) << ", " << coordinate(site.site.point.z()) << "]}\n";
+    }
+    y << "  reference_muscles: [";
+    for (std::size_t k = 0; k < m.sites.reference_muscles.size(); ++k)
+      y << (k ? ", " : "") << doubleQuoted(m.sites.reference_muscles[k]);
+    y << "]\n  sites_source: " << doubleQuoted(m.sites.source()) << "\n";
   }
   return y.str();
 }
@@ -103,6 +127,32 @@ std::string musclesTable(const ScenePreparation& p) {
   return r.str();
 }
 
+// The tendons' paths to the attachment sites, each point with its distance to its bone, and what was left out.
+std::string attachmentSitesText(const PreparedMuscle& m) {
+  std::ostringstream r;
+  if (m.sites.empty() && m.sites.notes.empty()) {
+    r << "- Attachment sites: none given; the fibre ends away from their bone hang from its nearest point.\n";
+    return r.str();
+  }
+  r << "- Attachment sites (tendon paths, in each link's frame; distance from the bone's surface, negative inside):\n";
+  for (const auto& [which, path] : {std::pair{"origin", &m.sites.origin_path},
+                                    std::pair{"insertion", &m.sites.insertion_path}}) {
+    r << "  - " << which << ": ";
+    if (path->empty()) r << "none (the bone's nearest point)";
+    for (std::size_t k = 0; k < path->size(); ++k) {
+      const PreparedSite& site = (*path)[k];
+      r << (k ? "; " : "") << site.label << " on `" << site.site.link << "` at (" << fixed(site.site.point.x(), 4)
+        << ", " << fixed(site.site.point.y(), 4) << ", " << fixed(site.site.point.z(), 4) << ") m, "
+        << millimetres(site.bone_distance_m) << " from the bone";
+      if (std::abs(site.bone_distance_m) > kSiteFarFromBoneM)
+        r << " (**far from the bone**: is the site in the link's frame, in metres?)";
+    }
+    r << "\n";
+  }
+  for (const std::string& note : m.sites.notes) r << "  - " << note << ".\n";
+  return r.str();
+}
+
 std::string muscleSection(const ScenePreparation& p, const PreparedMuscle& m) {
   std::ostringstream r;
   r << "### " << m.source.name << "\n\n"
@@ -130,6 +180,7 @@ std::string muscleSection(const ScenePreparation& p, const PreparedMuscle& m) {
     << m.fibres.patches.insertion_vertices.size() << " surface vertices).";
   for (const std::string& note : m.fibres.patches.notes) r << " " << note << ".";
   r << "\n";
+  r << attachmentSitesText(m);
   const MuscleBuildSummary& a = m.attachments;
   if (a.particles > 0) {
     r << "- Attachments the node makes with its defaults: " << a.fixed_particles << " of " << a.particles

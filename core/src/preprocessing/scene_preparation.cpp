@@ -3,12 +3,15 @@
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/base/inside_test.hpp"
+#include "muscle_deformation/core/scene/opensim_model.hpp"
 #include "muscle_deformation/preprocessing/scene_directory.hpp"
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <map>
+#include <optional>
 #include <set>
 #include <stdexcept>
 
@@ -158,12 +161,22 @@ void measureOverlaps(std::vector<PreparedMuscle>& muscles, const std::vector<Bon
 }
 
 // The attachments the node will make with `settings` (fixed particles per bone, tendons), from the model builder.
-void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings) {
+void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings,
+                        const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
   std::vector<Muscle> muscles;
   for (const PreparedMuscle& prepared : preparation.muscles) {
     if (!prepared.prepared()) continue;
-    muscles.push_back(Muscle{prepared.source.name, prepared.surface, prepared.fibres.fibres, prepared.source.origin_link,
-                             prepared.source.insertion_link});
+    Muscle muscle;
+    muscle.name = prepared.source.name;
+    muscle.surface = prepared.surface;
+    muscle.fibres = prepared.fibres.fibres;
+    muscle.origin_bone = prepared.source.origin_link;
+    muscle.insertion_bone = prepared.source.insertion_link;
+    for (const auto& [sites, path] : {std::pair{&prepared.sites.origin_path, &muscle.origin_path},
+                                      std::pair{&prepared.sites.insertion_path, &muscle.insertion_path}})
+      for (const PreparedSite& site : *sites)
+        path->push_back({site.site.link, rest_link_poses.at(site.site.link) * site.site.point});
+    muscles.push_back(std::move(muscle));
   }
   if (muscles.empty()) return;
   try {
@@ -178,6 +191,26 @@ void measureAttachments(ScenePreparation& preparation, const ModelSettings& sett
   }
 }
 
+// The OpenSim maps name only what exists: scene muscles being prepared, muscles and bodies of the model, links of the
+// URDF. Throws std::invalid_argument naming the entry.
+void checkOpenSimMaps(const OpenSimModel& osim, const ScenePreparationRequest& request, const Skeleton& skeleton) {
+  for (const auto& [muscle, counterpart] : request.osim.muscles) {
+    if (std::none_of(request.muscles.begin(), request.muscles.end(),
+                     [&, m = muscle](const MuscleSource& source) { return source.name == m; }))
+      throw std::invalid_argument("--osim-muscle " + muscle + "=" + counterpart + ": no muscle '" + muscle +
+                                  "' is given with --muscle");
+    openSimCounterpart(osim, request.osim, muscle);  // throws for a muscle the model lacks
+  }
+  const std::vector<std::string> bodies = osim.bodyNames();
+  for (const auto& [body, link] : request.osim.bodies) {
+    if (std::find(bodies.begin(), bodies.end(), body) == bodies.end())
+      throw std::invalid_argument("--osim-body " + body + "=" + link + ": " + osim.source() + " has no body '" + body +
+                                  "'");
+    if (!skeleton.link(link))
+      throw std::invalid_argument("--osim-body " + body + "=" + link + ": '" + link + "' is not a link of the URDF");
+  }
+}
+
 }  // namespace
 
 MuscleSource parseMuscleSource(const std::string& text) {
@@ -187,11 +220,17 @@ MuscleSource parseMuscleSource(const std::string& text) {
   if (first == std::string::npos || before_last == std::string::npos || before_last <= first)
     throw std::invalid_argument("'" + text + "' is not NAME:MESH:ORIGIN_LINK:INSERTION_LINK");
   MuscleSource source{text.substr(0, first), text.substr(first + 1, before_last - first - 1),
-                      text.substr(before_last + 1, last - before_last - 1), text.substr(last + 1)};
+                      text.substr(before_last + 1, last - before_last - 1), text.substr(last + 1), {}, {}};
   for (const auto& [field, value] : {std::pair{"NAME", &source.name}, std::pair{"MESH", &source.mesh_file},
                                      std::pair{"ORIGIN_LINK", &source.origin_link},
                                      std::pair{"INSERTION_LINK", &source.insertion_link}})
     if (value->empty()) throw std::invalid_argument("'" + text + "': " + field + " is empty");
+  for (const auto& [link, site] : {std::pair{&source.origin_link, &source.origin_site},
+                                   std::pair{&source.insertion_link, &source.insertion_site}}) {
+    const LinkWithSite parsed = parseLinkWithSite(*link);
+    *link = parsed.link;
+    *site = parsed.site;
+  }
   return source;
 }
 
@@ -241,6 +280,19 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
     throw SceneError(request.urdf_file + ": no link has a <collision> mesh, so there are no bones to attach muscles "
                      "to (bones are the links' collision meshes)");
 
+  // Link poses at the zero configuration in the scene frame: the sites are given in their links' frames.
+  std::map<std::string, Eigen::Isometry3d> rest_link_poses = skeleton.linkPoses({});
+  const Eigen::Isometry3d to_scene_frame = rest_link_poses.at(preparation.frame).inverse();
+  for (auto& [link, pose] : rest_link_poses) pose = to_scene_frame * pose;
+  std::vector<std::string> links_with_bones;
+  for (const Bone& bone : preparation.bones) links_with_bones.push_back(bone.name);
+  std::optional<OpenSimModel> osim;
+  if (!request.osim.osim_file.empty()) {
+    osim = OpenSimModel::fromFile(request.osim.osim_file);
+    preparation.osim_file = fs::absolute(request.osim.osim_file).lexically_normal().string();
+    checkOpenSimMaps(*osim, request, skeleton);
+  }
+
   std::set<std::string> names;
   for (std::size_t i = 0; i < request.muscles.size(); ++i) {
     PreparedMuscle muscle;
@@ -262,6 +314,19 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
         muscle.fibre_file = "fibres/" + name + ".vtk";
         saveFibresVtk((fs::path(preparation.out_dir) / muscle.fibre_file).string(), muscle.fibres.fibres, 5,
                       muscle.fibres.checks.failures);
+        const std::string counterpart = osim ? openSimCounterpart(*osim, request.osim, name) : "";
+        std::vector<std::string> notes;
+        const std::vector<PathCandidate> candidates =
+            pathCandidates(name, {muscle.source.origin_link, muscle.source.origin_site},
+                           {muscle.source.insertion_link, muscle.source.insertion_site}, osim ? &*osim : nullptr,
+                           counterpart, request.osim.bodies, links_with_bones, notes);
+        muscle.sites = placeAgainstBelly(candidates, muscle.surface, muscle.fibres.fibres, rest_link_poses,
+                                         preparation.bones);
+        muscle.sites.notes.insert(muscle.sites.notes.begin(), notes.begin(), notes.end());
+        if (osim && counterpart.empty())
+          muscle.sites.notes.push_back("no muscle of the OpenSim model is named '" + name +
+                                       "' (map one with --osim-muscle " + name + "=OSIM_MUSCLE)");
+        if (!counterpart.empty()) muscle.sites.reference_muscles = {counterpart};
       }
     } catch (const std::exception& e) {  // LoadError, FibreGenerationError: this muscle only
       muscle.refusal = e.what();
@@ -271,6 +336,13 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
       if (muscle.repair.changed()) line += "repaired (" + muscle.repair.describe() + "); ";
       line += std::to_string(muscle.fibres.fibres.size()) + " fibres, " +
               (muscle.fibres.checks.passed() ? "checks passed" : "checks FAILED");
+      const int sites = static_cast<int>(muscle.sites.origin_path.size() + muscle.sites.insertion_path.size());
+      if (sites > 0) line += ", " + std::to_string(sites) + " attachment site" + (sites > 1 ? "s" : "");
+      double farthest = 0;
+      if (const int far = muscle.sites.farFromBone(&farthest); far > 0)
+        line += " (" + std::to_string(far) + " of them more than " + std::to_string(int(kSiteFarFromBoneM * 1e3)) +
+                " mm from their bone, up to " + std::to_string(int(std::lround(farthest * 1e3))) +
+                " mm: are they in the links' frames, in metres?)";
       say(line);
     } else {
       say("muscle '" + name + "' NOT prepared: " + muscle.refusal);
@@ -278,7 +350,7 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
     preparation.muscles.push_back(std::move(muscle));
   }
   measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
-  measureAttachments(preparation, request.model);
+  measureAttachments(preparation, request.model, rest_link_poses);
   writeSceneDirectory(preparation);
   return preparation;
 }

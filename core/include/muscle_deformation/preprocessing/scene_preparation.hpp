@@ -9,24 +9,29 @@
 #include "muscle_deformation/core/io/surface_repair.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/preprocessing/attachment_sites.hpp"
 #include "muscle_deformation/preprocessing/fibre_generator.hpp"
 
 #include <array>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
 namespace muscle_deformation {
 
-// One muscle to prepare: its name in the scene, its surface file and the URDF links of its origin and insertion.
+// One muscle to prepare: its name in the scene, its surface file and the URDF links of its origin and insertion, with
+// the attachment sites on them when the user gives them (metres in the link's frame).
 struct MuscleSource {
   std::string name;
   std::string mesh_file;
   std::string origin_link, insertion_link;
+  std::optional<Eigen::Vector3d> origin_site = std::nullopt, insertion_site = std::nullopt;
 };
 
 // NAME:MESH:ORIGIN_LINK:INSERTION_LINK (the mesh path may itself hold colons: the name is the first field, the links
-// the last two). Throws std::invalid_argument saying what is missing.
+// the last two); each link may carry its site, LINK@x,y,z (metres in the link's frame). Throws std::invalid_argument
+// saying what is missing or malformed.
 MuscleSource parseMuscleSource(const std::string& text);
 
 struct ScenePreparationRequest {
@@ -39,6 +44,7 @@ struct ScenePreparationRequest {
   UriResolver resolve_uri;       // the URDF's mesh URIs (package://, file://, paths) to files
   FibreGeneratorOptions fibres;
   ModelSettings model;           // the attachment rule the report shows (the node's defaults)
+  OpenSimSiteRequest osim;       // attachment sites from an OpenSim model of the same skeleton (none: osim_file empty)
 };
 
 // One collision mesh of the URDF, as the node will load it.
@@ -72,6 +78,7 @@ struct PreparedMuscle {
   std::array<float, 4> colour{0.8f, 0.2f, 0.2f, 1.0f};
   FibreGenerationResult fibres;
   std::vector<BoneOverlap> overlaps;  // bones the muscle lies inside of at rest, deepest first
+  TendonPaths sites;                  // the tendons' paths to the attachment sites (empty: none given)
   MuscleBuildSummary attachments;     // the particles the node fixes to which bone, tendons (ModelSettings)
   bool prepared() const { return refusal.empty(); }
 };
@@ -83,6 +90,7 @@ struct ScenePreparation {
   std::string frame;
   double scale_to_metres = 1.0;
   int fibres_asked = 0;
+  std::string osim_file;                // the OpenSim model the sites come from (absolute; "" = none)
   std::vector<BoneMeshCheck> bone_meshes;
   std::vector<Bone> bones;              // at rest in the scene frame, with the stand-ins in place
   std::vector<PreparedMuscle> muscles;  // in the order asked for
