@@ -1,11 +1,15 @@
 // Specifications of the basic mesh geometry: bounds, topology checks, volume, normals, closest points.
 #include "muscle_deformation/core/base/geometry.hpp"
+#include "muscle_deformation/core/base/point_index.hpp"
+#include "muscle_deformation/support/synthetic_scene.hpp"
 
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -272,4 +276,41 @@ TEST(PolylineLength, SumsSegmentLengths) {
 TEST(PolylineLength, SinglePointOrEmptyIsZero) {
   EXPECT_EQ(md::polylineLength(md::Polyline(3, 0)), 0.0);
   EXPECT_EQ(md::polylineLength(md::Polyline::Ones(3, 1)), 0.0);
+}
+
+// A fine sphere beside a few triangles a hundred times larger (a decimated flat face): the large ones are checked on
+// every query instead of widening every search to their size, and every distance is still the exact one.
+TEST(SurfaceDistance, MixedTriangleSizesGiveTheExactDistanceEverywhere) {
+  md::TriangleMesh mesh = md::makeSphereMesh(Eigen::Vector3d::Zero(), 0.01, 3);
+  const Eigen::Index first = mesh.vertexCount();
+  mesh.vertices.conservativeResize(Eigen::NoChange, first + 6);
+  mesh.vertices.col(first) << -1.0, -1.0, 0.05;
+  mesh.vertices.col(first + 1) << 1.0, -1.0, 0.05;
+  mesh.vertices.col(first + 2) << 0.0, 1.0, 0.05;
+  mesh.vertices.col(first + 3) << -1.0, -1.0, -0.3;
+  mesh.vertices.col(first + 4) << 1.0, 1.0, -0.3;
+  mesh.vertices.col(first + 5) << -1.0, 1.0, -0.2;
+  const Eigen::Index triangles = mesh.triangleCount();
+  mesh.triangles.conservativeResize(Eigen::NoChange, triangles + 2);
+  mesh.triangles.col(triangles) << static_cast<int>(first), static_cast<int>(first + 1), static_cast<int>(first + 2);
+  mesh.triangles.col(triangles + 1) << static_cast<int>(first + 3), static_cast<int>(first + 4),
+      static_cast<int>(first + 5);
+  const md::SurfaceDistance surface(mesh.vertices, mesh.triangles);
+  std::srand(7);
+  for (int q = 0; q < 500; ++q) {
+    const Eigen::Vector3d query = 0.08 * Eigen::Vector3d::Random();
+    double brute = std::numeric_limits<double>::infinity();
+    for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
+      brute = std::min(brute, (md::closestPointOnTriangle(query, mesh.vertices.col(mesh.triangles(0, t)),
+                                                          mesh.vertices.col(mesh.triangles(1, t)),
+                                                          mesh.vertices.col(mesh.triangles(2, t))) -
+                               query)
+                                  .norm());
+    EXPECT_NEAR(surface.distance(query), brute, 1e-12) << "query " << q;
+    const double within = surface.distanceWithin(query, 0.02);
+    if (brute <= 0.02)
+      EXPECT_NEAR(within, brute, 1e-12) << "query " << q;
+    else
+      EXPECT_TRUE(std::isinf(within)) << "query " << q;
+  }
 }

@@ -5,6 +5,7 @@
 #include <nanoflann.hpp>
 
 #include <cmath>
+#include <map>
 #include <limits>
 #include <stdexcept>
 
@@ -83,21 +84,46 @@ void PointIndex::within(const Eigen::Vector3d& query, double radius,
 }
 
 namespace {
-Eigen::Matrix3Xd triangleCentroids(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles) {
-  Eigen::Matrix3Xd centroids(3, triangles.cols());
-  for (Eigen::Index t = 0; t < triangles.cols(); ++t)
-    centroids.col(t) =
-        (vertices.col(triangles(0, t)) + vertices.col(triangles(1, t)) + vertices.col(triangles(2, t))) / 3.0;
-  return centroids;
+
+Eigen::Vector3d centroidOf(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles, Eigen::Index t) {
+  return (vertices.col(triangles(0, t)) + vertices.col(triangles(1, t)) + vertices.col(triangles(2, t))) / 3.0;
 }
+
+double extentOf(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles, Eigen::Index t) {
+  const Eigen::Vector3d centroid = centroidOf(vertices, triangles, t);
+  double extent = 0;
+  for (int corner = 0; corner < 3; ++corner)
+    extent = std::max(extent, (vertices.col(triangles(corner, t)) - centroid).norm());
+  return extent;
+}
+
 }  // namespace
 
 SurfaceDistance::SurfaceDistance(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles)
-    : vertices_(vertices), triangles_(triangles), centroids_(triangleCentroids(vertices, triangles)) {
-  for (Eigen::Index t = 0; t < triangles_.cols(); ++t)
-    for (int corner = 0; corner < 3; ++corner)
-      max_centroid_to_vertex_ = std::max(
-          max_centroid_to_vertex_, (vertices_.col(triangles_(corner, t)) - centroids_.points().col(t)).norm());
+    : vertices_(vertices), triangles_(triangles) {
+  const Eigen::Index count = triangles_.cols();
+  std::vector<double> extents(static_cast<std::size_t>(count));
+  double smallest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index t = 0; t < count; ++t) {
+    extents[static_cast<std::size_t>(t)] = extentOf(vertices_, triangles_, t);
+    if (extents[static_cast<std::size_t>(t)] > 0) smallest = std::min(smallest, extents[static_cast<std::size_t>(t)]);
+  }
+  // Level k holds the extents up to smallest x 2^k (degenerate triangles in the first).
+  std::map<int, std::vector<std::int32_t>> by_level;
+  for (Eigen::Index t = 0; t < count; ++t) {
+    const double extent = extents[static_cast<std::size_t>(t)];
+    const int level = extent > smallest ? static_cast<int>(std::ceil(std::log2(extent / smallest))) : 0;
+    by_level[level].push_back(static_cast<std::int32_t>(t));
+  }
+  for (auto& [level, members] : by_level) {
+    Eigen::Matrix3Xd centroids(3, static_cast<Eigen::Index>(members.size()));
+    double max_extent = 0;
+    for (std::size_t k = 0; k < members.size(); ++k) {
+      centroids.col(static_cast<Eigen::Index>(k)) = centroidOf(vertices_, triangles_, members[k]);
+      max_extent = std::max(max_extent, extents[static_cast<std::size_t>(members[k])]);
+    }
+    levels_.push_back(Level{std::move(members), PointIndex(centroids), max_extent});
+  }
 }
 
 double SurfaceDistance::distanceWithin(const Eigen::Vector3d& query, double max_distance) const {
@@ -105,27 +131,32 @@ double SurfaceDistance::distanceWithin(const Eigen::Vector3d& query, double max_
   return best <= max_distance ? best : std::numeric_limits<double>::infinity();
 }
 
+double SurfaceDistance::distanceToTriangle(const Eigen::Vector3d& query, std::int32_t t) const {
+  return (closestPointOnTriangle(query, vertices_.col(triangles_(0, t)), vertices_.col(triangles_(1, t)),
+                                 vertices_.col(triangles_(2, t))) -
+          query)
+      .norm();
+}
+
 double SurfaceDistance::nearestAmongCandidates(const Eigen::Vector3d& query, double max_distance) const {
-  if (triangles_.cols() == 0) return std::numeric_limits<double>::infinity();
-  // Any triangle with a point within max_distance has its centroid within max_distance + its own extent.
-  std::vector<std::pair<std::int32_t, double>> candidates;
-  centroids_.within(query, max_distance + max_centroid_to_vertex_, candidates);
   double best = std::numeric_limits<double>::infinity();
-  for (const auto& candidate : candidates) {
-    const int t = candidate.first;
-    const Eigen::Vector3d closest = closestPointOnTriangle(query, vertices_.col(triangles_(0, t)),
-                                                           vertices_.col(triangles_(1, t)),
-                                                           vertices_.col(triangles_(2, t)));
-    best = std::min(best, (closest - query).norm());
+  std::vector<std::pair<std::int32_t, double>> candidates;
+  for (const Level& level : levels_) {
+    // Any triangle of the level with a point within the bound has its centroid within the bound + the level's extent.
+    level.centroids.within(query, std::min(max_distance, best) + level.max_extent, candidates);
+    for (const auto& candidate : candidates)
+      best = std::min(best, distanceToTriangle(query, level.triangles[static_cast<std::size_t>(candidate.first)]));
   }
   return best;
 }
 
 double SurfaceDistance::distance(const Eigen::Vector3d& query) const {
   if (triangles_.cols() == 0) return std::numeric_limits<double>::infinity();
-  // The nearest centroid bounds the true distance from above, so the nearest triangle is among the candidates within
-  // that bound. Not compared with the bound again: rounding can put the exact answer a hair above it.
-  const double upper = centroids_.nearest(query).second;
+  // The nearest centroid of any level bounds the true distance from above (its triangle reaches at least that close),
+  // so the nearest triangle is among the candidates within that bound. Not compared with the bound again: rounding can
+  // put the exact answer a hair above it.
+  double upper = std::numeric_limits<double>::infinity();
+  for (const Level& level : levels_) upper = std::min(upper, level.centroids.nearest(query).second);
   return nearestAmongCandidates(query, upper);
 }
 

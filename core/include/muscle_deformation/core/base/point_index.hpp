@@ -48,13 +48,21 @@ class SurfaceDistance {
   double distance(const Eigen::Vector3d& query) const;
 
  private:
-  // Smallest exact distance over the triangles whose centroid lies within max_distance + triangle extent.
+  double distanceToTriangle(const Eigen::Vector3d& query, std::int32_t triangle) const;
+  // Smallest exact distance over the triangles that may lie within max_distance (+infinity when there are none).
   double nearestAmongCandidates(const Eigen::Vector3d& query, double max_distance) const;
 
   Eigen::Matrix3Xd vertices_;
   Eigen::Matrix3Xi triangles_;
-  PointIndex centroids_;
-  double max_centroid_to_vertex_ = 0;  // a triangle lies within this radius of its centroid
+  // The triangles in levels by size (centroid to farthest corner, each level up to twice the one before), each level
+  // a kd-tree of centroids searched to its own largest extent: a decimated surface's large flat faces beside fine
+  // detail no longer widen every query's search to their size, which made each query visit most of such a surface.
+  struct Level {
+    std::vector<std::int32_t> triangles;  // of each centroid in the index
+    PointIndex centroids;
+    double max_extent = 0;  // a triangle of the level lies within this radius of its centroid
+  };
+  std::vector<Level> levels_;
 };
 
 }  // namespace muscle_deformation
