@@ -136,7 +136,7 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertIn('osim: "%s"' % os.path.relpath(osim, self.out), scene)
         self.assertIn("add_long_r-P2 (add_long_r) on `femur_r`", self.read("report.md"))
 
-    def test_bad_attachment_site_options_are_refused_naming_the_problem(self):
+    def test_bad_site_and_overlap_options_are_refused_naming_the_problem(self):
         belly = "belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw
         osim = os.path.join(PACKAGE, "data", "opensim", "gait2392_millard2012muscle.osim")
         for muscles, options, expected in [
@@ -144,7 +144,8 @@ class PrepareSceneEndToEnd(unittest.TestCase):
                 ([belly], ["--osim-muscle", "belly=add_long_r"], "--osim-muscle needs --osim"),
                 ([belly], ["--osim", osim, "--osim-muscle", "belly"], "is not NAME=OTHER"),
                 ([belly], ["--osim", osim, "--osim-muscle", "belly=nothing_r"], "has no muscle 'nothing_r'"),
-                ([belly], ["--osim", os.path.join(self.raw, "none.osim")], "none.osim")]:
+                ([belly], ["--osim", os.path.join(self.raw, "none.osim")], "none.osim"),
+                ([belly], ["--rest-overlaps", "push-out"], "report or carve-bones")]:
             run = self.prepare(*muscles, options=options)
             self.assertEqual(run.returncode, 1, expected)
             self.assertIn(expected, run.stderr)

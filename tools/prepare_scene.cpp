@@ -41,6 +41,10 @@ const std::string kUsage = std::string(
     "  --frame LINK       the link whose frame the muscle files use at the URDF's zero configuration (default: the\n"
     "                     URDF's root link); the node's fixed_frame must be this link or one that coincides with it\n"
     "  --package-dir DIR  a package folder for package:// URIs (others are looked up under ROS_PACKAGE_PATH)\n"
+    "  --rest-overlaps report|carve-bones\n"
+    "                     where a muscle lies inside a bone at rest: report it (default; the node keeps those\n"
+    "                     particles from going deeper, never out), or carve each such bone's copy by the muscles\n"
+    "                     grown by 0.5 mm (0.5 mm voxels), written into DIR/meshes/bones/ for the node to use\n"
     "Attachment sites (where the tendons attach; without them a fibre end away from its bone hangs from the bone's\n"
     "nearest point, and a joint between the belly and the real attachment hardly changes the muscle's length):\n"
     "  LINK@x,y,z         in --muscle, either link may carry its site: metres in that link's frame, e.g.\n"
@@ -60,7 +64,8 @@ const std::string kUsage = std::string(
 
 int run(int argc, char** argv) {
   std::set<std::string> value_options = {"--urdf",        "--muscle", "--out",         "--scale",    "--frame",
-                                         "--package-dir", "--osim",   "--osim-muscle", "--osim-body"};
+                                         "--package-dir", "--osim",   "--osim-muscle", "--osim-body",
+                                         "--rest-overlaps"};
   value_options.insert(md::tools::kFibreOptionNames.begin(), md::tools::kFibreOptionNames.end());
   const md::tools::Arguments args(argc, argv, value_options, {}, {"--muscle", "--osim-muscle", "--osim-body"});
   for (const char* required : {"--urdf", "--muscle", "--out"})
@@ -90,6 +95,11 @@ int run(int argc, char** argv) {
   request.resolve_uri =
       md::tools::packageUriResolver(packages, fs::absolute(request.urdf_file).parent_path().string());
   request.fibres = md::tools::fibreOptions(args);
+  if (args.has("--rest-overlaps")) {
+    const std::string& rule = args.value("--rest-overlaps");
+    if (rule == "carve-bones") request.rest_overlaps = md::RestOverlapRule::carve_bones;
+    else if (rule != "report") throw UsageError("--rest-overlaps '" + rule + "': report or carve-bones");
+  }
   if (args.has("--osim")) request.osim.osim_file = args.value("--osim");
   for (const auto& [option, map] : {std::pair{"--osim-muscle", &request.osim.muscles},
                                     std::pair{"--osim-body", &request.osim.bodies}}) {

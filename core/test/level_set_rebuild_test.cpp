@@ -1,5 +1,6 @@
 // The level-set rebuild: the surface of the volume some triangles enclose, for the defects a local repair cannot undo,
 // with what it changed measured. And the fold detection that sends a closed surface crossing itself to it.
+#include "muscle_deformation/core/base/inside_test.hpp"
 #include "muscle_deformation/core/base/self_intersection.hpp"
 #include "muscle_deformation/core/io/level_set_rebuild.hpp"
 #include "muscle_deformation/core/io/mesh_io.hpp"
@@ -181,4 +182,55 @@ TEST(SurfaceRepair, TheReportSaysHowMuchTheRebuildChangedTheVolumeAndHowFarItMov
   EXPECT_CONTAINS(text, "every vertex within ");
   // The strip's tip lay 15 mm out: the rebuild left it out, and says how far.
   EXPECT_GT(report.level_set->max_input_distance_m, 0.01);
+}
+
+// A 40 mm box with a 10 mm ball sunk half into its top face, and a second ball 4 mm into its side: the box carved by
+// both, grown by a 1.5 mm clearance at a 1 mm voxel, lets no vertex of either ball inside it (the clearance is
+// larger than the voxel, the iso-surface's and the decimation's error), loses the two grown caps' volume within 2 %,
+// and stays where no ball is.
+TEST(LevelSetCarve, ABoxCarvedByTwoBallsLetsNeitherInsideAndLosesOnlyTheirGrownCaps) {
+  const md::TriangleMesh box = md::makeBoxMesh(Eigen::Vector3d(-0.02, -0.02, -0.04), Eigen::Vector3d(0.02, 0.02, 0.0),
+                                               0.004);
+  const md::TriangleMesh top_ball = md::makeSphereMesh(Eigen::Vector3d(0, 0, 0), 0.01, 4);
+  const md::TriangleMesh side_ball = md::makeSphereMesh(Eigen::Vector3d(0.026, 0, -0.02), 0.01, 4);
+  const double clearance = 0.0015, voxel = 0.001;
+  md::LevelSetRebuildReport report;
+  const md::TriangleMesh carved =
+      md::carvedFromLevelSet(box, {top_ball, side_ball}, clearance, voxel, 4000, report);
+  EXPECT_TRUE(md::checkSurfaceTopology(carved).closedManifold());
+  EXPECT_FALSE(md::findSelfIntersections(carved).crosses());
+  EXPECT_LE(carved.triangleCount(), 4400);
+
+  const md::ClosedSurfaceInsideTest inside(carved, "carved box");
+  for (const md::TriangleMesh* ball : {&top_ball, &side_ball})
+    for (Eigen::Index v = 0; v < ball->vertexCount(); ++v)
+      EXPECT_FALSE(inside.contains(ball->vertices.col(v))) << "ball vertex " << v;
+
+  // Caps of the balls grown by the clearance: a half ball, and a cap of height 4 mm + clearance.
+  const double r = 0.01 + clearance;
+  const double half_ball = 2.0 / 3.0 * M_PI * r * r * r;
+  const double h = 0.004 + clearance;
+  const double cap = M_PI * h * h * (3 * r - h) / 3.0;
+  const double box_volume = 0.04 * 0.04 * 0.04;
+  EXPECT_NEAR(report.volume_m3, box_volume - half_ball - cap, 0.02 * (half_ball + cap));
+  EXPECT_NEAR(report.max_distance_to_input_m, r, voxel);  // the deepest carve: the half ball's grown radius
+
+  // The bottom corners, far from both balls, are where they were (within a voxel).
+  const md::SurfaceDistance to_carved(carved.vertices, carved.triangles);
+  EXPECT_LT(to_carved.distance(Eigen::Vector3d(-0.02, -0.02, -0.04)), voxel);
+  EXPECT_LT(to_carved.distance(Eigen::Vector3d(0.02, 0.02, -0.04)), voxel);
+}
+
+TEST(LevelSetCarve, RefusesSurfacesThatAreNotClosedAndAVoxelThatIsNotPositive) {
+  using md::testing::errorMessageOf;
+  const md::TriangleMesh box = md::makeBoxMesh(Eigen::Vector3d(-0.02, -0.02, -0.04), Eigen::Vector3d(0.02, 0.02, 0.0));
+  md::TriangleMesh open = box;
+  open.triangles.conservativeResize(Eigen::NoChange, open.triangleCount() - 1);
+  md::LevelSetRebuildReport report;
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::carvedFromLevelSet(open, {box}, 0.001, 0.0005, 0, report); }),
+                  "not a closed");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::carvedFromLevelSet(box, {open}, 0.001, 0.0005, 0, report); }),
+                  "not a closed");
+  EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>([&] { md::carvedFromLevelSet(box, {box}, 0.001, 0.0, 0, report); }),
+                  "voxel");
 }

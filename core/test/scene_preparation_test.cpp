@@ -5,6 +5,7 @@
 
 #include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
+#include "muscle_deformation/core/pipeline/settings_table.hpp"
 #include "muscle_deformation/core/scene/opensim_model.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
@@ -404,4 +405,60 @@ TEST_F(ScenePreparationTest, OpenSimMapsThatNameWhatDoesNotExistAreRefusedBefore
   asked.osim.bodies.clear();
   asked.osim.osim_file = (raw_ / "missing.osim").string();
   EXPECT_CONTAINS(errorMessageOf<md::SceneError>([&] { md::prepareScene(asked); }), "missing.osim");
+}
+
+// The spindle pushed 6 mm up into the pelvis box: reported as given, and with the carve the node's pelvis is a copy
+// the muscle no longer enters, while the file the URDF names stays as it was.
+TEST_F(ScenePreparationTest, ARestOverlapIsCarvedOutOfTheBonesCopyWhenAskedAndTheMuscleStartsOutsideIt) {
+  md::TriangleMesh raised = md::loadTriangleMesh((raw_ / "muscle_mm.stl").string());
+  raised.vertices.row(2).array() += 6.0;  // millimetres
+  md::saveTriangleMeshStl((raw_ / "raised_mm.stl").string(), raised);
+  const md::MuscleSource muscle{"raised", (raw_ / "raised_mm.stl").string(), "pelvis", "femur_r"};
+  const md::ScenePreparation reported = md::prepareScene(request({muscle}));
+  ASSERT_TRUE(reported.muscles.at(0).prepared()) << reported.muscles[0].refusal;
+  ASSERT_FALSE(reported.muscles[0].overlaps.empty());
+  EXPECT_EQ(reported.muscles[0].overlaps[0].bone, "pelvis");
+  EXPECT_NEAR(reported.muscles[0].overlaps[0].max_depth_m, 0.006, 0.001);
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "--rest-overlaps carve-bones");
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kSmallHip.string());
+  md::PipelineSettings settings = md::nodeDefaultSettings().pipeline;
+  settings.simulation.model.particles_per_fibre = 8;
+  {
+    // The node's startup line says how deep the deepest particle starts inside a bone.
+    const md::Scene loaded =
+        md::loadScene(md::loadSceneDescription((out_ / md::kSceneFileName).string()), skeleton, packageResolver());
+    md::DeformationPipeline pipeline(loaded.muscle_descriptions, loaded.muscles, loaded.bones, settings);
+    ASSERT_TRUE(pipeline.restPenetration().has_value());
+    EXPECT_GT(pipeline.restPenetration()->depth_m, 0.003);
+    EXPECT_EQ(pipeline.restPenetration()->bone, "pelvis");
+    EXPECT_EQ(pipeline.restPenetration()->muscle, "raised");
+    EXPECT_CONTAINS(pipeline.describe(), "mm inside bone 'pelvis' at rest (muscle 'raised')");
+  }
+
+  md::ScenePreparationRequest carve = request({muscle});
+  carve.rest_overlaps = md::RestOverlapRule::carve_bones;
+  const md::ScenePreparation carved = md::prepareScene(carve);
+  ASSERT_TRUE(carved.muscles.at(0).prepared()) << carved.muscles[0].refusal;
+  EXPECT_TRUE(carved.muscles[0].overlaps.empty()) << carved.muscles[0].overlaps[0].max_depth_m;
+  ASSERT_EQ(carved.muscles[0].overlaps_before_carving.size(), 2u);  // the pelvis, and the marker its side touches
+  const auto pelvis = std::find_if(carved.bone_meshes.begin(), carved.bone_meshes.end(),
+                                   [](const md::BoneMeshCheck& b) { return b.link == "pelvis"; });
+  ASSERT_NE(pelvis, carved.bone_meshes.end());
+  EXPECT_EQ(pelvis->carved_by, "raised");
+  EXPECT_EQ(pelvis->stand_in, "meshes/bones/pelvis_pelvis_mm_carved.stl");
+  EXPECT_GT(pelvis->carve.max_distance_to_input_m, 0.006);  // the deepest carve: the overlap and the clearance
+  EXPECT_LT(pelvis->carve.max_distance_to_input_m, 0.006 + md::kCarveClearanceM + 0.001);
+  // The femur, which the muscle only touches, is the repaired copy of before, not carved.
+  const auto femur = std::find_if(carved.bone_meshes.begin(), carved.bone_meshes.end(),
+                                  [](const md::BoneMeshCheck& b) { return b.link == "femur_r"; });
+  EXPECT_TRUE(femur->carved_by.empty());
+
+  // The node's own path: the scene loads the carved copy, and no particle starts inside a bone.
+  const md::Scene loaded =
+      md::loadScene(md::loadSceneDescription((out_ / md::kSceneFileName).string()), skeleton, packageResolver());
+  md::DeformationPipeline pipeline(loaded.muscle_descriptions, loaded.muscles, loaded.bones, settings);
+  ASSERT_TRUE(pipeline.restPenetration().has_value());
+  EXPECT_EQ(pipeline.restPenetration()->depth_m, 0.0) << pipeline.describe();
+  EXPECT_CONTAINS(pipeline.describe(), "no particle centre inside a bone at rest");
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "copy carved by raised");
 }

@@ -69,6 +69,7 @@ struct CollisionWorld::Impl {
   std::vector<Eigen::VectorXd> field_clearance;  // [bone][k] for particle field_particles[k]
   std::vector<AlignedBox> field_reach;           // [bone], world frame
   int closer_than_radius_at_rest = 0;
+  CollisionWorld::RestPenetration deepest_at_rest;
   // What the last read of each (bone, particle) proved (seeded with the rest distances): a particle is read again only
   // once it may have come within reach. Skipping is exact, the contacts found are the same.
   mutable std::vector<FieldReadCache> field_reads;  // [bone], indexed like field_particles
@@ -159,6 +160,7 @@ struct CollisionWorld::Impl {
         const double at_rest = probe.distance(system.rest_position.col(p));
         clearance[kk] = std::min(radius, at_rest);
         if (at_rest < radius) closer[static_cast<std::size_t>(p)] = 1;
+        if (-at_rest > deepest_at_rest.depth_m) deepest_at_rest = {-at_rest, p, static_cast<int>(b)};
         reads.remember(kk, system.rest_position.col(p), at_rest);
       }
       field_clearance.push_back(std::move(clearance));
@@ -357,6 +359,9 @@ CollisionWorld::~CollisionWorld() = default;
 bool CollisionWorld::everyParticleCollides() const { return !impl_->bone_fields.empty(); }
 
 int CollisionWorld::particlesCloserThanRadiusAtRest() const { return impl_->closer_than_radius_at_rest; }
+CollisionWorld::RestPenetration CollisionWorld::deepestParticleInsideBoneAtRest() const {
+  return impl_->deepest_at_rest;
+}
 
 void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per_bone_index) {
   Impl& w = *impl_;

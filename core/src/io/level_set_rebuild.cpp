@@ -9,6 +9,8 @@
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/VolumeToMesh.h>
 
+#include <limits>
+
 #include <vtkNew.h>
 #include <vtkPolyData.h>
 #include <vtkQuadricDecimation.h>
@@ -43,6 +45,11 @@ constexpr double kVoxelsPerThickness = 5.0;
 // fewer than kMinIsoTriangles (quadric decimation of 700,000 triangles took 30 s, of 170,000 4 s).
 constexpr double kIsoTrianglesPerTarget = 8.0;
 constexpr double kMinIsoTriangles = 2e5;
+// The decimation tries the count asked for, then twice it, and so on up to this many times (closedDecimatedSurface).
+// A carve follows muscle surfaces into a bone at half a millimetre: a carved pelvis needed about 100,000 triangles to
+// stay within a voxel of its iso-surface, where a rebuilt one keeps its own coarse shape.
+constexpr long kRebuildMaxFactor = 8;
+constexpr long kCarveMaxFactor = 32;
 // A volume's level set reaches deeper inside than this (voxels); a sheet's spurious inside does not (see below).
 constexpr double kMinDepthVoxels = 1.5;
 
@@ -229,6 +236,104 @@ double largestDistance(const TriangleMesh& from, const SurfaceDistance& to) {
 
 }  // namespace
 
+namespace {
+
+// What a decimated surface must stay close to: the input (a rebuild keeps the input's shape) or the iso-surface as
+// extracted (a carve changes the input's shape on purpose; decimating must not undo it).
+enum class DecimationReference { input, iso_surface };
+
+// The zero iso-surface of `grid` (metres = voxel units x report.voxel_m) as one closed, outward-wound piece (the
+// largest; what the others enclosed is reported), decimated to about `target_triangles` while it stays within a voxel
+// of the reference and leaves out no more of it than the iso-surface did plus a voxel. The report's distances are to
+// `mesh`, the input.
+TriangleMesh closedDecimatedSurface(const openvdb::FloatGrid& grid, const TriangleMesh& mesh, long target_triangles,
+                                    long max_factor, DecimationReference kept_close_to,
+                                    LevelSetRebuildReport& report) {
+  TriangleMesh surface = isoSurface(grid);
+  surface.vertices *= report.voxel_m;  // back from voxel units to metres
+  if (surface.triangleCount() == 0)
+    throw NoEnclosedVolumeError("its " + std::to_string(mesh.triangleCount()) + " triangles enclose no volume at a " +
+                                fixed(report.voxel_m * 1e3, 3) + " mm voxel: the level set of their distance field "
+                                "has no surface");
+  report.iso_surface_triangles = static_cast<long>(surface.triangleCount());
+
+  // One closed piece: the one enclosing most; what the others enclosed is reported.
+  const std::vector<std::vector<Eigen::Index>> parts = pieces(surface);
+  std::size_t largest = 0;
+  std::vector<double> volumes;
+  for (std::size_t p = 0; p < parts.size(); ++p) {
+    volumes.push_back(std::abs(enclosedVolume(subset(surface, parts[p]))));
+    if (volumes[p] > volumes[largest]) largest = p;
+  }
+  for (std::size_t p = 0; p < parts.size(); ++p)
+    if (p != largest) report.pieces_dropped_volume_m3 += volumes[p];
+  if (parts.size() > 1) surface = subset(surface, parts[largest]);
+  if (enclosedVolume(surface) < 0)
+    for (Eigen::Index t = 0; t < surface.triangleCount(); ++t) std::swap(surface.triangles(1, t), surface.triangles(2, t));
+  if (!(enclosedVolume(surface) > 0))
+    throw NoEnclosedVolumeError("its " + std::to_string(mesh.triangleCount()) + " triangles enclose no volume at a " +
+                                fixed(report.voxel_m * 1e3, 3) + " mm voxel");
+
+  const TriangleMesh reference = kept_close_to == DecimationReference::input ? mesh : surface;
+  const SurfaceDistance to_input(reference.vertices, reference.triangles);
+  double iso_to_reference = largestDistance(surface, to_input);
+  double reference_to_iso = largestDistance(reference, SurfaceDistance(surface.vertices, surface.triangles));
+
+  // Decimated to about the count asked for. Quadric decimation checks no topology and minds no distance to the input,
+  // so a result is taken only when it is a closed 2-manifold that does not cross itself, within a voxel of the input
+  // and leaves out no more of it than the iso-surface did plus a voxel; otherwise twice the count is taken, and so on
+  // up to `max_factor` times, before the iso-surface is kept as it is. (A 242-triangle OpenSim pelvis: at its own count the
+  // decimation moved the surface 1.3 mm at a 1 mm voxel.) The iso-surface is decimated once, to the largest count, and
+  // each smaller one from the one before: decimating 170,000 triangles takes seconds, 2,000 milliseconds.
+  if (target_triangles > 0 && surface.triangleCount() > target_triangles + target_triangles / 10) {
+    std::vector<std::pair<long, TriangleMesh>> candidates;  // largest count first
+    for (long factor = max_factor; factor >= 1; factor /= 2) {
+      const long target = factor * target_triangles;
+      if (target >= surface.triangleCount()) continue;
+      candidates.emplace_back(target, decimated(candidates.empty() ? surface : candidates.back().second, target));
+    }
+    std::string why;
+    bool done = false;
+    for (auto candidate = candidates.rbegin(); candidate != candidates.rend() && !done; ++candidate) {
+      const TriangleMesh& decimated_surface = candidate->second;
+      const bool first = candidate == candidates.rbegin();
+      if (!isSound(decimated_surface)) {
+        if (first) why = "broke the surface";
+        continue;
+      }
+      const double to = largestDistance(decimated_surface, to_input);
+      const double from =
+          largestDistance(reference, SurfaceDistance(decimated_surface.vertices, decimated_surface.triangles));
+      if (to > std::max(report.voxel_m, iso_to_reference) || from > reference_to_iso + report.voxel_m) {
+        if (first) why = "moved the surface " + fixed(1e3 * std::max(to, from), 2) + " mm";
+        continue;
+      }
+      if (!first)
+        report.decimation_note = "decimation to " + std::to_string(target_triangles) + " triangles " + why +
+                                 ", so to " + std::to_string(candidate->first);
+      iso_to_reference = to;
+      reference_to_iso = from;
+      surface = decimated_surface;
+      done = true;
+    }
+    if (!done)
+      report.decimation_note = "decimation towards " + std::to_string(target_triangles) + " triangles " +
+                               (why.empty() ? "left too few" : why) + ", so the iso-surface is kept as extracted";
+  }
+  if (kept_close_to == DecimationReference::input) {
+    report.max_distance_to_input_m = iso_to_reference;
+    report.max_input_distance_m = reference_to_iso;
+  } else {
+    report.max_distance_to_input_m = largestDistance(surface, SurfaceDistance(mesh.vertices, mesh.triangles));
+    report.max_input_distance_m = largestDistance(mesh, SurfaceDistance(surface.vertices, surface.triangles));
+  }
+  report.triangles = static_cast<long>(surface.triangleCount());
+  report.volume_m3 = enclosedVolume(surface);
+  return surface;
+}
+
+}  // namespace
+
 TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles, LevelSetRebuildReport& report,
                                  double voxel_m) {
   report = LevelSetRebuildReport{};
@@ -282,79 +387,67 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
                                 fixed(deepest_voxels, 1) + " voxels of " + fixed(report.voxel_m * 1e3, 3) +
                                 " mm (a sheet, a fin, or an open surface whose outside reaches in)");
 
-  TriangleMesh surface = isoSurface(*grid);
-  surface.vertices *= report.voxel_m;  // back from voxel units to metres
-  if (surface.triangleCount() == 0)
-    throw NoEnclosedVolumeError("its " + std::to_string(mesh.triangleCount()) + " triangles enclose no volume at a " +
-                                fixed(report.voxel_m * 1e3, 3) + " mm voxel: the level set of their distance field "
-                                "has no surface");
-  report.iso_surface_triangles = static_cast<long>(surface.triangleCount());
+  return closedDecimatedSurface(*grid, mesh, target_triangles, kRebuildMaxFactor, DecimationReference::input, report);
+}
 
-  // One closed piece: the one enclosing most; what the others enclosed is reported.
-  const std::vector<std::vector<Eigen::Index>> parts = pieces(surface);
-  std::size_t largest = 0;
-  std::vector<double> volumes;
-  for (std::size_t p = 0; p < parts.size(); ++p) {
-    volumes.push_back(std::abs(enclosedVolume(subset(surface, parts[p]))));
-    if (volumes[p] > volumes[largest]) largest = p;
+namespace {
+
+// A mesh's vertices in voxel units and its triangles, as OpenVDB takes them.
+struct VoxelMesh {
+  std::vector<openvdb::Vec3s> points;
+  std::vector<openvdb::Vec3I> triangles;
+  VoxelMesh(const TriangleMesh& mesh, double voxel) {
+    points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
+    for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
+      points.emplace_back(static_cast<float>(mesh.vertices(0, v) / voxel), static_cast<float>(mesh.vertices(1, v) / voxel),
+                          static_cast<float>(mesh.vertices(2, v) / voxel));
+    triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
+    for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
+      triangles.emplace_back(static_cast<unsigned>(mesh.triangles(0, t)), static_cast<unsigned>(mesh.triangles(1, t)),
+                             static_cast<unsigned>(mesh.triangles(2, t)));
   }
-  for (std::size_t p = 0; p < parts.size(); ++p)
-    if (p != largest) report.pieces_dropped_volume_m3 += volumes[p];
-  if (parts.size() > 1) surface = subset(surface, parts[largest]);
-  if (enclosedVolume(surface) < 0)
-    for (Eigen::Index t = 0; t < surface.triangleCount(); ++t) std::swap(surface.triangles(1, t), surface.triangles(2, t));
-  if (!(enclosedVolume(surface) > 0))
-    throw NoEnclosedVolumeError("its " + std::to_string(mesh.triangleCount()) + " triangles enclose no volume at a " +
-                                fixed(report.voxel_m * 1e3, 3) + " mm voxel");
+};
 
-  const SurfaceDistance to_input(mesh.vertices, mesh.triangles);
-  report.max_distance_to_input_m = largestDistance(surface, to_input);
-  report.max_input_distance_m = largestDistance(mesh, SurfaceDistance(surface.vertices, surface.triangles));
+}  // namespace
 
-  // Decimated to about the count asked for. Quadric decimation checks no topology and minds no distance to the input,
-  // so a result is taken only when it is a closed 2-manifold that does not cross itself, within a voxel of the input
-  // and leaves out no more of it than the iso-surface did plus a voxel; otherwise twice the count is taken, and so on
-  // up to 8 times, before the iso-surface is kept as it is. (A 242-triangle OpenSim pelvis: at its own count the
-  // decimation moved the surface 1.3 mm at a 1 mm voxel.) The iso-surface is decimated once, to the largest count, and
-  // each smaller one from the one before: decimating 170,000 triangles takes seconds, 2,000 milliseconds.
-  if (target_triangles > 0 && surface.triangleCount() > target_triangles + target_triangles / 10) {
-    std::vector<std::pair<long, TriangleMesh>> candidates;  // largest count first
-    for (long factor = 8; factor >= 1; factor /= 2) {
-      const long target = factor * target_triangles;
-      if (target >= surface.triangleCount()) continue;
-      candidates.emplace_back(target, decimated(candidates.empty() ? surface : candidates.back().second, target));
+TriangleMesh carvedFromLevelSet(const TriangleMesh& mesh, const std::vector<TriangleMesh>& cutters, double clearance_m,
+                                double voxel_m, long target_triangles, LevelSetRebuildReport& report) {
+  report = LevelSetRebuildReport{};
+  if (!(voxel_m > 0) || !std::isfinite(voxel_m)) throw std::invalid_argument("the carve's voxel must be positive");
+  if (!(clearance_m >= 0) || !std::isfinite(clearance_m))
+    throw std::invalid_argument("the carve's clearance must be zero or positive");
+  if (!checkSurfaceTopology(mesh).closedManifold())
+    throw std::invalid_argument("the surface to carve is not a closed 2-manifold");
+  for (const TriangleMesh& cutter : cutters)
+    if (!checkSurfaceTopology(cutter).closedManifold())
+      throw std::invalid_argument("a surface to carve with is not a closed 2-manifold");
+  report.input_triangles = static_cast<long>(mesh.triangleCount());
+  report.input_volume_m3 = std::abs(enclosedVolume(mesh));
+  report.voxel_m = voxel_m;
+  initialiseOpenVdbOnce();
+  const auto transform = openvdb::math::Transform::createLinearTransform(1.0);  // voxel units, as the rebuild
+  // The carved surface's distance field everywhere inside: a cutter reaching deep into it must reach its inactive
+  // interior too, which a narrow band leaves at one value.
+  const VoxelMesh carved(mesh, voxel_m);
+  openvdb::FloatGrid::Ptr grid = openvdb::tools::meshToSignedDistanceField<openvdb::FloatGrid>(
+      *transform, carved.points, carved.triangles, std::vector<openvdb::Vec4I>(), kHalfBandVoxels,
+      std::numeric_limits<float>::max());
+  const float clearance = static_cast<float>(clearance_m / voxel_m);
+  for (const TriangleMesh& cutter : cutters) {
+    // Its narrow band reaches beyond the clearance; deeper inside, the band's inactive value (negative) still says
+    // "inside", which is all the difference needs there.
+    const VoxelMesh voxels(cutter, voxel_m);
+    const openvdb::FloatGrid::Ptr cut = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(
+        *transform, voxels.points, voxels.triangles, kHalfBandVoxels + clearance + 1.0f);
+    const auto cut_values = cut->getConstAccessor();
+    // bone minus (cutter grown by the clearance): max(bone, clearance - cutter), voxel by voxel.
+    for (auto voxel = grid->beginValueOn(); voxel; ++voxel) {
+      const float grown = clearance - cut_values.getValue(voxel.getCoord());
+      if (grown > *voxel) voxel.setValue(grown);
     }
-    std::string why;
-    bool done = false;
-    for (auto candidate = candidates.rbegin(); candidate != candidates.rend() && !done; ++candidate) {
-      const TriangleMesh& decimated_surface = candidate->second;
-      const bool first = candidate == candidates.rbegin();
-      if (!isSound(decimated_surface)) {
-        if (first) why = "broke the surface";
-        continue;
-      }
-      const double to = largestDistance(decimated_surface, to_input);
-      const double from = largestDistance(mesh, SurfaceDistance(decimated_surface.vertices, decimated_surface.triangles));
-      if (to > std::max(report.voxel_m, report.max_distance_to_input_m) ||
-          from > report.max_input_distance_m + report.voxel_m) {
-        if (first) why = "moved the surface " + fixed(1e3 * std::max(to, from), 2) + " mm";
-        continue;
-      }
-      if (!first)
-        report.decimation_note = "decimation to " + std::to_string(target_triangles) + " triangles " + why +
-                                 ", so to " + std::to_string(candidate->first);
-      report.max_distance_to_input_m = to;
-      report.max_input_distance_m = from;
-      surface = decimated_surface;
-      done = true;
-    }
-    if (!done)
-      report.decimation_note = "decimation towards " + std::to_string(target_triangles) + " triangles " +
-                               (why.empty() ? "left too few" : why) + ", so the iso-surface is kept as extracted";
   }
-  report.triangles = static_cast<long>(surface.triangleCount());
-  report.volume_m3 = enclosedVolume(surface);
-  return surface;
+  return closedDecimatedSurface(*grid, mesh, target_triangles, kCarveMaxFactor, DecimationReference::iso_surface,
+                                report);
 }
 
 }  // namespace muscle_deformation

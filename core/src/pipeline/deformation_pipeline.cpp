@@ -85,6 +85,20 @@ const CollisionWorld* DeformationPipeline::collisionWorld() const { return simul
 const BoneFields& DeformationPipeline::boneFields() const { return simulation_->boneFields(); }
 const RestOverlapSummary& DeformationPipeline::restOverlaps() const { return simulation_->restOverlaps(); }
 
+std::optional<DeformationPipeline::RestPenetration> DeformationPipeline::restPenetration() const {
+  const CollisionWorld* world = simulation_->collisionWorld();
+  if (!world || !world->everyParticleCollides()) return std::nullopt;
+  const CollisionWorld::RestPenetration deepest = world->deepestParticleInsideBoneAtRest();
+  RestPenetration out;
+  out.depth_m = deepest.depth_m;
+  if (deepest.particle >= 0) {
+    const MassSpringSystem& model = system();
+    out.muscle = muscles().at(static_cast<std::size_t>(model.muscle_of[static_cast<std::size_t>(deepest.particle)])).name;
+    out.bone = bones().at(static_cast<std::size_t>(deepest.bone)).name;
+  }
+  return out;
+}
+
 const FrameResult& DeformationPipeline::solve(const BoneTransforms& transforms, StartMode start,
                                               const FrameStopping& stopping, bool want_surfaces, bool want_metrics,
                                               double frame_interval_s) {
@@ -216,7 +230,13 @@ std::string DeformationPipeline::describe() const {
       std::ostringstream fields;
       fields << "bones as distance fields (" << sim.settings().collision.bone_field.voxel_m * 1000 << " mm voxels, "
              << field_mib << " MiB, built in " << field_ms << " ms; " << world->particlesCloserThanRadiusAtRest()
-             << " particles closer to a bone at rest than their radius, held at that depth)";
+             << " particles closer to a bone at rest than their radius, held at that depth; ";
+      if (const std::optional<RestPenetration> rest = restPenetration(); rest && rest->depth_m > 0)
+        fields << "the deepest particle centre " << rest->depth_m * 1000 << " mm inside bone '" << rest->bone
+               << "' at rest (muscle '" << rest->muscle << "')";
+      else
+        fields << "no particle centre inside a bone at rest";
+      fields << ")";
       bone_proxy = fields.str();
     } else {
       bone_proxy = std::to_string(bone_spheres) + " bone spheres";

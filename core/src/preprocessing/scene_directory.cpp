@@ -198,14 +198,25 @@ std::string muscleSection(const ScenePreparation& p, const PreparedMuscle& m) {
         << a.closest_attachment_bones[0] << ", " << a.closest_attachment_bones[1] << ")";
     r << ".\n";
   }
+  if (p.rest_overlaps == RestOverlapRule::carve_bones) {
+    r << "- Overlap with the bones as given, at rest:";
+    if (m.overlaps_before_carving.empty()) r << " none.";
+    for (const BoneOverlap& o : m.overlaps_before_carving)
+      r << " " << o.bone << ": " << o.vertices_inside << " vertices (" << fixed(100 * o.share, 1) << " %), deepest "
+        << millimetres(o.max_depth_m) << ";";
+    r << (m.overlaps_before_carving.empty() ? "" : " those bones' copies were carved by the muscles (above).") << "\n";
+  }
   if (m.overlaps.empty()) {
-    r << "- Overlap with the bones at rest: none (no surface vertex inside a bone).\n";
+    r << "- Overlap with the bones" << (p.rest_overlaps == RestOverlapRule::carve_bones ? " the node uses" : "")
+      << " at rest: none (no surface vertex inside a bone).\n";
   } else {
     r << "- Overlap with the bones at rest:";
     for (const BoneOverlap& o : m.overlaps)
       r << " " << o.bone << ": " << o.vertices_inside << " vertices (" << fixed(100 * o.share, 1)
         << " %), deepest " << millimetres(o.max_depth_m) << ";";
-    r << " the node keeps those particles from going deeper, it does not push them out.\n";
+    r << " the node keeps those particles from going deeper, it does not push them out"
+      << (p.rest_overlaps == RestOverlapRule::carve_bones ? "" : " (`--rest-overlaps carve-bones` carves the bones' copies)")
+      << ".\n";
   }
   r << "\n";
   return r.str();
@@ -227,12 +238,16 @@ std::string reportMarkdown(const ScenePreparation& p) {
   for (const BoneMeshCheck& b : p.bone_meshes) {
     r << "| " << b.link << " | `" << b.uri << "` | " << b.triangles << " | "
       << (b.defects.empty() ? "closed" : b.defects) << " | ";
-    if (!b.stand_in.empty())
+    if (!b.carved_by.empty())
+      r << "copy carved by " << b.carved_by << " `" << b.stand_in << "` (" << describeCarve(b.carve) << ")"
+        << (b.defects.empty() ? "" : ", after its repair (" + b.repair.describe() + ")");
+    else if (!b.stand_in.empty())
       r << "repaired copy `" << b.stand_in << "` (" << b.repair.describe() << ")";
     else if (b.problem.empty())
       r << "as given";
     else
       r << "**unusable**: " << b.problem;
+    if (!b.carve_problem.empty()) r << "; **not carved**: " << b.carve_problem;
     r << " |\n";
   }
   r << "\n## Muscles\n\n" << musclesTable(p) << "\n";
@@ -418,6 +433,22 @@ Window Geometry:
 }
 
 }  // namespace
+
+std::string describeCarve(const LevelSetRebuildReport& carve) {
+  std::ostringstream out;
+  out << "volume " << fixed(carve.input_volume_m3.value_or(std::nan("")) * 1e6, 1) << " ml -> "
+      << fixed(carve.volume_m3 * 1e6, 1) << " ml";
+  if (const std::optional<double> change = carve.volumeChange())
+    out << " (" << (*change >= 0 ? "+" : "") << fixed(100 * *change, 2) << " %)";
+  out << ", carved up to " << millimetres(carve.max_distance_to_input_m) << " deep";
+  if (carve.pieces_dropped_volume_m3 >= 0.005e-6)  // what shows in the report's 0.01 ml
+    out << ", pieces cut off (" << fixed(carve.pieces_dropped_volume_m3 * 1e6, 2) << " ml) dropped";
+  out << ", " << carve.triangles << " triangles (voxel " << fixed(carve.voxel_m * 1e3, 2) << " mm, clearance "
+      << fixed(kCarveClearanceM * 1e3, 2) << " mm";
+  if (!carve.decimation_note.empty()) out << "; " << carve.decimation_note;
+  out << ")";
+  return out.str();
+}
 
 std::string doubleQuoted(const std::string& text) {
   std::string out = "\"";

@@ -160,6 +160,79 @@ void measureOverlaps(std::vector<PreparedMuscle>& muscles, const std::vector<Bon
               [](const BoneOverlap& a, const BoneOverlap& b) { return a.max_depth_m > b.max_depth_m; });
 }
 
+// The fewest triangles a carved bone copy is decimated to: enough for a bone given as a box to follow the muscles.
+constexpr long kMinCarvedTriangles = 4000;
+
+// The copies of the bones the muscles overlap at rest, carved by those muscles grown by kCarveClearanceM, in the mesh
+// files' own units and frame (as every stand-in: the URDF's scale and origin still apply). Each carved copy replaces
+// the bone's stand-in; a carve that fails leaves the bone as it was and says why.
+void carveBonesAtRest(ScenePreparation& preparation, const Skeleton& skeleton,
+                      const std::map<std::string, Eigen::Isometry3d>& rest_link_poses,
+                      const std::function<void(const std::string&)>& say) {
+  for (BoneMeshCheck& check : preparation.bone_meshes) {
+    if (!check.problem.empty()) continue;
+    std::vector<const PreparedMuscle*> cutters;
+    for (const PreparedMuscle& muscle : preparation.muscles)
+      if (muscle.prepared() &&
+          std::any_of(muscle.overlaps_before_carving.begin(), muscle.overlaps_before_carving.end(),
+                      [&](const BoneOverlap& o) { return o.bone == check.link; }))
+        cutters.push_back(&muscle);
+    if (cutters.empty()) continue;
+    const SkeletonLink* link = skeleton.link(check.link);
+    const auto ref = std::find_if(link->collision_meshes.begin(), link->collision_meshes.end(),
+                                  [&](const CollisionMeshRef& r) { return r.uri == check.uri; });
+    // Mesh file -> scene frame at rest: the link's rest pose, the collision's origin, the mesh's scale.
+    const Eigen::Affine3d to_scene = Eigen::Affine3d(rest_link_poses.at(check.link)) * Eigen::Affine3d(ref->origin) *
+                                     Eigen::Scaling(ref->scale);
+    const Eigen::Affine3d to_mesh = to_scene.inverse();
+    const double scale = ref->scale.cwiseAbs().minCoeff();  // mesh units per metre, at the least
+    try {
+      const TriangleMesh bone = loadTriangleMesh(
+          check.stand_in.empty() ? check.file : (fs::path(preparation.out_dir) / check.stand_in).string());
+      // A link may have several meshes (a pelvis of hip bones and a sacrum): each is carved only by the muscles that
+      // enter it, and one that none enters stays as it is.
+      const ClosedSurfaceInsideTest inside(bone, check.uri);
+      std::vector<TriangleMesh> in_mesh_frame;
+      for (const PreparedMuscle* muscle : cutters) {
+        TriangleMesh moved = muscle->surface;
+        moved.vertices = to_mesh * muscle->surface.vertices;
+        bool enters = false;
+        for (Eigen::Index v = 0; v < moved.vertexCount() && !enters; ++v) enters = inside.contains(moved.vertices.col(v));
+        if (!enters) continue;
+        in_mesh_frame.push_back(std::move(moved));
+        check.carved_by += (check.carved_by.empty() ? "" : ", ") + muscle->source.name;
+      }
+      if (in_mesh_frame.empty()) continue;
+      // A bone given as a few large triangles (a box) keeps about as many as the carve needs to follow the muscles.
+      const long target = std::max<long>(static_cast<long>(bone.triangleCount()), kMinCarvedTriangles);
+      const TriangleMesh carved = carvedFromLevelSet(bone, in_mesh_frame, kCarveClearanceM / scale,
+                                                     kCarveVoxelM / scale, target, check.carve);
+      // The report in the scene's units.
+      const double volume_scale = std::abs(ref->scale.prod());
+      check.carve.voxel_m *= scale;
+      check.carve.volume_m3 *= volume_scale;
+      if (check.carve.input_volume_m3) *check.carve.input_volume_m3 *= volume_scale;
+      check.carve.pieces_dropped_volume_m3 *= volume_scale;
+      check.carve.max_distance_to_input_m *= scale;
+      check.carve.max_input_distance_m *= scale;
+      check.stand_in = "meshes/bones/" + check.link + "_" + fs::path(check.file).stem().string() + "_carved.stl";
+      // STL stores floats: the node reads the copy back through float coordinates, where a sliver of the iso-surface
+      // may collapse. What it reads must be closed, so the copy is written as read back, repaired if it has to be.
+      const std::string written = (fs::path(preparation.out_dir) / check.stand_in).string();
+      saveTriangleMeshStl(written, carved);
+      SurfaceRepairReport round_trip;
+      const TriangleMesh read_back = closedOrRepaired(loadTriangleMesh(written), written, round_trip);
+      if (round_trip.changed()) saveTriangleMeshStl(written, read_back);
+      say("bone '" + check.link + "' " + check.uri + ": carved by " + check.carved_by + " into " + check.stand_in +
+          ": " + describeCarve(check.carve));
+    } catch (const std::exception& e) {
+      check.carve_problem = e.what();
+      check.carved_by.clear();
+      say("bone '" + check.link + "' " + check.uri + ": NOT carved: " + check.carve_problem);
+    }
+  }
+}
+
 // The attachments the node will make with `settings` (fixed particles per bone, tendons), from the model builder.
 void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings,
                         const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
@@ -350,6 +423,15 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
     preparation.muscles.push_back(std::move(muscle));
   }
   measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
+  preparation.rest_overlaps = request.rest_overlaps;
+  if (request.rest_overlaps == RestOverlapRule::carve_bones) {
+    for (PreparedMuscle& muscle : preparation.muscles) muscle.overlaps_before_carving = std::move(muscle.overlaps);
+    for (PreparedMuscle& muscle : preparation.muscles) muscle.overlaps.clear();
+    carveBonesAtRest(preparation, skeleton, rest_link_poses, say);
+    preparation.bones = loadBones(sceneSkeletonPart(preparation.out_dir, preparation.frame, preparation.bone_meshes),
+                                  skeleton, request.resolve_uri);
+    measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
+  }
   measureAttachments(preparation, request.model, rest_link_poses);
   writeSceneDirectory(preparation);
   return preparation;

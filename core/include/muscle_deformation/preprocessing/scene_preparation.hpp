@@ -6,6 +6,7 @@
 // (scene_directory.hpp writes the last three).
 #pragma once
 
+#include "muscle_deformation/core/io/level_set_rebuild.hpp"
 #include "muscle_deformation/core/io/surface_repair.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
@@ -34,6 +35,18 @@ struct MuscleSource {
 // saying what is missing or malformed.
 MuscleSource parseMuscleSource(const std::string& text);
 
+// What preparation does where a muscle lies inside a bone at rest (a segmentation's bone and muscle overlap, or the
+// bone comes from another body): report it (the node then keeps those particles from going deeper, never out), or
+// carve the bone's copy by the muscles grown by kCarveClearanceM (the bundled scene's treatment), so that the muscles
+// start outside their bones. The muscles stay as segmented.
+enum class RestOverlapRule { report, carve_bones };
+
+// The carve's voxel and clearance (m, in the scene's units): the bundled build's, measured there (data/README.md,
+// "Bones carved by the muscles"). The clearance covers what the iso-surface and its decimation move the carved surface
+// back, and keeps the muscle particles' centres out of the node's bone fields.
+constexpr double kCarveVoxelM = 0.5e-3;
+constexpr double kCarveClearanceM = 0.5e-3;
+
 struct ScenePreparationRequest {
   std::string out_dir;           // created if missing; files of an earlier run there are overwritten
   std::string command_line;      // for the report: how it was made
@@ -45,6 +58,7 @@ struct ScenePreparationRequest {
   FibreGeneratorOptions fibres;
   ModelSettings model;           // the attachment rule the report shows (the node's defaults)
   OpenSimSiteRequest osim;       // attachment sites from an OpenSim model of the same skeleton (none: osim_file empty)
+  RestOverlapRule rest_overlaps = RestOverlapRule::report;
 };
 
 // One collision mesh of the URDF, as the node will load it.
@@ -57,6 +71,11 @@ struct BoneMeshCheck {
   SurfaceRepairReport repair;
   std::string stand_in;      // the closed copy written for the node, relative to the scene directory ("" = none)
   std::string problem;       // why the node cannot use it as it is and the repair could not help ("" = usable)
+  // RestOverlapRule::carve_bones: the muscles the copy was carved by ("" = not carved), what the carve did (volumes in
+  // m^3 and distances in m, in the scene's units), and why a carve failed ("" = it did not).
+  std::string carved_by;
+  LevelSetRebuildReport carve;
+  std::string carve_problem;
 };
 
 // A muscle vertex count inside one bone at rest.
@@ -77,7 +96,8 @@ struct PreparedMuscle {
   double volume_m3 = 0;
   std::array<float, 4> colour{0.8f, 0.2f, 0.2f, 1.0f};
   FibreGenerationResult fibres;
-  std::vector<BoneOverlap> overlaps;  // bones the muscle lies inside of at rest, deepest first
+  std::vector<BoneOverlap> overlaps;  // bones the muscle lies inside of at rest, deepest first (after any carve)
+  std::vector<BoneOverlap> overlaps_before_carving;  // RestOverlapRule::carve_bones: as the bones were given
   TendonPaths sites;                  // the tendons' paths to the attachment sites (empty: none given)
   MuscleBuildSummary attachments;     // the particles the node fixes to which bone, tendons (ModelSettings)
   bool prepared() const { return refusal.empty(); }
@@ -91,6 +111,7 @@ struct ScenePreparation {
   double scale_to_metres = 1.0;
   int fibres_asked = 0;
   std::string osim_file;                // the OpenSim model the sites come from (absolute; "" = none)
+  RestOverlapRule rest_overlaps = RestOverlapRule::report;
   std::vector<BoneMeshCheck> bone_meshes;
   std::vector<Bone> bones;              // at rest in the scene frame, with the stand-ins in place
   std::vector<PreparedMuscle> muscles;  // in the order asked for

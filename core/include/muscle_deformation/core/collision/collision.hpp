@@ -90,6 +90,13 @@ class CollisionWorld {
   bool everyParticleCollides() const;
   // Free particles lying closer to a bone at rest than their radius (or inside it): they may not go deeper than that.
   int particlesCloserThanRadiusAtRest() const;
+  // The free particle whose centre lies deepest inside a bone at rest (bone distance fields only): a segmentation's
+  // muscle and bone that overlap put particles there, and the contacts keep them no deeper, never out.
+  struct RestPenetration {
+    double depth_m = 0;  // 0: no particle centre inside a bone at rest
+    int particle = -1, bone = -1;
+  };
+  RestPenetration deepestParticleInsideBoneAtRest() const;
   const std::vector<int>& boneSphereCounts() const { return bone_sphere_counts_; }
   const SphereSet& boneSpheresRest(int bone) const;
   int muscleSphereCount() const;  // boundary particles taking part in collision, all muscles

@@ -13,6 +13,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace muscle_deformation {
 
@@ -61,5 +62,15 @@ double levelSetVoxelFor(const TriangleMesh& mesh, long target_triangles);
 // and a quarter of it), std::invalid_argument for non-finite vertices or an out-of-range index.
 TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles, LevelSetRebuildReport& report,
                                  double voxel_m = 0);
+
+// `mesh` minus the volumes of `cutters` grown by `clearance_m`, as a closed, outward-wound 2-manifold surface (the
+// largest piece; pieces cut off are reported), decimated to about `target_triangles` (0: as extracted) without moving
+// further than a voxel from the carved iso-surface. For a bone copy that gives way to the muscles a segmentation put
+// inside it: the cutters stay as they are. Every surface in the same frame and unit; `voxel_m` in that unit too. The
+// report's distances are to `mesh`: max_distance_to_input_m is how far the surface moved (the deepest carve), and
+// max_input_distance_m how far any input vertex is from it. Throws std::invalid_argument for a surface that is not
+// closed or a voxel that is not positive, and NoEnclosedVolumeError when nothing is left.
+TriangleMesh carvedFromLevelSet(const TriangleMesh& mesh, const std::vector<TriangleMesh>& cutters, double clearance_m,
+                                double voxel_m, long target_triangles, LevelSetRebuildReport& report);
 
 }  // namespace muscle_deformation

@@ -11,6 +11,7 @@
 #include "muscle_deformation/core/surfaces/surface_volume.hpp"
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -149,6 +150,13 @@ class DeformationPipeline {
   // The bones' distance fields (bone_proxy distance_field; empty otherwise), shared with another pipeline of the scene.
   const BoneFields& boneFields() const;
   const RestOverlapSummary& restOverlaps() const;
+  // How deep the deepest free particle's centre lies inside a bone at rest, with its muscle and the bone (bone
+  // distance fields; absent with sphere proxies or without collision, which do not measure it).
+  struct RestPenetration {
+    double depth_m = 0;  // 0: none inside
+    std::string muscle, bone;
+  };
+  std::optional<RestPenetration> restPenetration() const;
   const std::vector<Bone>& bones() const;  // what a pose's bone transforms are of
   const std::vector<MuscleDescription>& descriptions() const { return descriptions_; }
   const PipelineSettings& settings() const { return settings_; }
