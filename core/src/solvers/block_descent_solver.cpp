@@ -311,6 +311,7 @@ void BlockDescentSolver::setVolumeTerm(VolumeTerm term) {
   volume_step_.setZero(3, n);
   volume_inverse_gradient_.setZero(3, n);
   volume_pending_.assign(static_cast<std::size_t>(n), 0);
+  volume_direct_.assign(static_cast<std::size_t>(n), 0);
 }
 
 void BlockDescentSolver::limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const {
@@ -326,6 +327,14 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   // d_p = a_p - mu b_p and mu = k (V - V_rest + sum g.a) / (1 + k sum g.b) (Sherman-Morrison). Each particle taking the
   // whole volume change for itself would overshoot it once per particle of the colour.
   const std::size_t muscles = volume_now_.size();
+  // Particles in contact took the volume term in their own step (their volume change is known): the others of the
+  // colour see the volume after them.
+  for (std::int32_t k = begin; k < end; ++k) {
+    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+    if (!volume_direct_[static_cast<std::size_t>(p)]) continue;
+    volume_now_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])] += volume_change_[p];
+    volume_direct_[static_cast<std::size_t>(p)] = 0;
+  }
   colour_a_.assign(muscles, 0.0);
   colour_b_.assign(muscles, 0.0);
   for (std::int32_t k = begin; k < end; ++k) {
@@ -564,6 +573,11 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           volume_on ? volume_now_[static_cast<std::size_t>(muscle)] - volume_.rest_volume_m3[static_cast<std::size_t>(muscle)]
                     : 0.0;
       const Eigen::Vector3d start = position.col(p);
+      // A particle with contacts takes the volume term into its own step, so that the step's halving minds it: the
+      // colour's joint volume step (applyVolumeSteps) moves a particle along H^-1 g without looking at the contacts,
+      // and pushed particles into the bones that the next sweep pushed out again; the residual then stopped falling.
+      const bool volume_inline = volume_on && has_contacts;
+      const auto volume_excess_at = [&](const Eigen::Vector3d& at) { return volume_excess + volume_g.dot(at - start); };
       // The particle's own energy with every other particle held: what its step must decrease.
       const auto local_energy = [&](const Eigen::Vector3d& at) {
         double energy = 0;
@@ -575,6 +589,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
           energy += contactEnergy(at, entry, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
         }
+        if (volume_inline) energy += 0.5 * volume_k * volume_excess_at(at) * volume_excess_at(at);
         return energy + dragEnergy(p, at, carried);
       };
       Eigen::Vector3d x = start;
@@ -599,6 +614,13 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           // The residual counts the volume term's force too, as the muscle's volume stands now.
           const Eigen::Vector3d pressure = volume_k * volume_excess * volume_g;
           residual_squared_[p] = (Eigen::Vector3d(block.fx, block.fy, block.fz) - pressure).squaredNorm();
+        }
+        if (volume_inline) {
+          const Eigen::Vector3d pressure = volume_k * volume_excess_at(x) * volume_g;
+          block.fx -= pressure.x();
+          block.fy -= pressure.y();
+          block.fz -= pressure.z();
+          block.addOuter(volume_k, volume_g.x(), volume_g.y(), volume_g.z());
         }
         block.addIsotropic(regularisation_[p]);
         if (volume_on) volume_inverse_gradient_.col(p) = block.solve(volume_g.x(), volume_g.y(), volume_g.z());
@@ -641,7 +663,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
           start_depth = std::max(start_depth, entry.depth(start));
         }
       step_bound_[p] = contact_query_ && bounded_step_[p] ? contact_margin_m_ + start_depth : -1.0;
-      if (volume_on) {
+      if (volume_on && !volume_inline) {
         // The volume term's share of the step waits for the colour (below): every particle of the colour in the
         // muscle moves at once, each on the same volume.
         volume_step_.col(p) = x - start;
@@ -650,7 +672,8 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       }
       limitStep(p, start, x);
       step_length_[p] = (x - start).norm();
-      volume_change_[p] = 0;
+      volume_change_[p] = volume_inline ? volume_g.dot(x - start) : 0.0;
+      if (volume_inline) volume_direct_[static_cast<std::size_t>(p)] = 1;
       position.col(p) = x;
     }
     if (volume_.active()) applyVolumeSteps(position, begin, end);

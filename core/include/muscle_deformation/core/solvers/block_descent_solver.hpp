@@ -258,6 +258,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   Eigen::Matrix3Xd volume_step_;       // per particle with a volume gradient: its step without the volume term
   Eigen::Matrix3Xd volume_inverse_gradient_;  // per particle: H_p^-1 g_p (its block without the volume term)
   std::vector<std::uint8_t> volume_pending_;  // per particle: its step waits for its colour's volume solve
+  std::vector<std::uint8_t> volume_direct_;   // per particle: took the volume term in its own step (in contact)
   std::vector<double> colour_a_, colour_b_;   // per muscle, scratch of applyVolumeSteps
   Eigen::VectorXd step_bound_;         // per particle: the longest step allowed this visit (< 0: none)
   // The particle's step cut to its bound (the contact margin plus its starting depth).
