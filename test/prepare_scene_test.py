@@ -136,6 +136,15 @@ class PrepareSceneEndToEnd(unittest.TestCase):
         self.assertIn('osim: "%s"' % os.path.relpath(osim, self.out), scene)
         self.assertIn("add_long_r-P2 (add_long_r) on `femur_r`", self.read("report.md"))
 
+    def test_a_surface_error_target_gives_each_muscle_its_resolution_in_the_scene(self):
+        run = self.prepare("belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw, options=["--surface-error-mm", "500"])
+        self.assertEqual(run.returncode, 0, run.stdout + run.stderr)
+        self.assertIn("resolution 80 particles per fibre: 2 poses solved", run.stdout)
+        self.assertIn("  particles_per_fibre: 10  # chosen for the surface error target", self.read("scene.yaml"))
+        report = self.read("report.md")
+        self.assertIn("## Resolution per muscle", report)
+        self.assertIn("hip_flexion_r +0.50 rad, hip_flexion_r -0.50 rad", report)
+
     def test_bad_site_and_overlap_options_are_refused_naming_the_problem(self):
         belly = "belly:%s/belly_mm.obj:pelvis:femur_r" % self.raw
         osim = os.path.join(PACKAGE, "data", "opensim", "gait2392_millard2012muscle.osim")
@@ -145,7 +154,8 @@ class PrepareSceneEndToEnd(unittest.TestCase):
                 ([belly], ["--osim", osim, "--osim-muscle", "belly"], "is not NAME=OTHER"),
                 ([belly], ["--osim", osim, "--osim-muscle", "belly=nothing_r"], "has no muscle 'nothing_r'"),
                 ([belly], ["--osim", os.path.join(self.raw, "none.osim")], "none.osim"),
-                ([belly], ["--rest-overlaps", "push-out"], "report or carve-bones")]:
+                ([belly], ["--rest-overlaps", "push-out"], "report or carve-bones"),
+                ([belly], ["--surface-error-mm", "-1"], "--surface-error-mm")]:
             run = self.prepare(*muscles, options=options)
             self.assertEqual(run.returncode, 1, expected)
             self.assertIn(expected, run.stderr)

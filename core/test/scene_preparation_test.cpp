@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include <unistd.h>  // getpid: a temporary folder per test process
 
@@ -461,4 +462,71 @@ TEST_F(ScenePreparationTest, ARestOverlapIsCarvedOutOfTheBonesCopyWhenAskedAndTh
   EXPECT_EQ(pipeline.restPenetration()->depth_m, 0.0) << pipeline.describe();
   EXPECT_CONTAINS(pipeline.describe(), "no particle centre inside a bone at rest");
   EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "copy carved by raised");
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Resolution per muscle for a surface error target
+
+namespace {
+
+// A small study: 4 and 8 particles per fibre against 16, at the small hip's hip flexion +/-0.5 rad.
+md::ResolutionChoiceRequest smallStudy(double target_m) {
+  md::ResolutionChoiceRequest study;
+  study.surface_error_m = target_m;
+  study.candidates = {4, 8};
+  study.finest = 16;
+  return study;
+}
+
+}  // namespace
+
+TEST_F(ScenePreparationTest, EachMuscleGetsTheCoarsestResolutionWithinTheTargetAndTheSceneSaysIt) {
+  md::ScenePreparationRequest asked = request({goodMuscle()});
+  asked.resolution = smallStudy(0.5);  // half a metre: the coarsest candidate meets it
+  const md::ScenePreparation generous = md::prepareScene(asked);
+  ASSERT_TRUE(generous.resolution.has_value()) << generous.resolution_problem;
+  EXPECT_EQ(generous.resolution->poses, (std::vector<std::string>{"hip_flexion_r +0.50 rad", "hip_flexion_r -0.50 rad"}));
+  ASSERT_EQ(generous.resolution->muscles.size(), 1u);
+  const md::MuscleResolution& spindle = generous.resolution->muscles[0];
+  EXPECT_TRUE(spindle.met);
+  EXPECT_EQ(spindle.chosen, 4);
+  ASSERT_EQ(spindle.worst_rms_m.size(), 2u);
+  EXPECT_GT(spindle.worst_rms_m[0], 0.0);  // the coarse model's skin differs from the finest one's
+  EXPECT_GE(spindle.worst_max_m[0], spindle.worst_rms_m[0]);
+  // The node reads the choice back from the scene.
+  const md::SceneDescription description = md::loadSceneDescription((out_ / md::kSceneFileName).string());
+  EXPECT_EQ(description.muscles.at(0).particles_per_fibre, 4);
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "## Resolution per muscle");
+
+  // A target between the two candidates' errors picks the finer one; a target below both says it is not met.
+  const double between = 0.5 * (spindle.worst_rms_m[0] + spindle.worst_rms_m[1]);
+  ASSERT_LT(spindle.worst_rms_m[1], spindle.worst_rms_m[0]);  // finer is closer to the finest
+  asked.resolution = smallStudy(between);
+  const md::ScenePreparation middle = md::prepareScene(asked);
+  ASSERT_TRUE(middle.resolution.has_value()) << middle.resolution_problem;
+  EXPECT_EQ(middle.resolution->muscles.at(0).chosen, 8);
+  EXPECT_TRUE(middle.resolution->muscles[0].met);
+  asked.resolution = smallStudy(1e-9);
+  const md::ScenePreparation strict = md::prepareScene(asked);
+  ASSERT_TRUE(strict.resolution.has_value()) << strict.resolution_problem;
+  EXPECT_FALSE(strict.resolution->muscles.at(0).met);
+  EXPECT_EQ(strict.resolution->muscles[0].chosen, 8);
+  EXPECT_CONTAINS(readText(out_ / md::kReportFileName), "target not met");
+}
+
+TEST(ResolutionChoice, RefusesATargetThatIsNotPositiveAndCandidatesThatDoNotIncreaseBelowTheFinest) {
+  using md::testing::errorMessageOf;
+  const md::Skeleton skeleton = md::Skeleton::fromUrdfFile(kSmallHip.string());
+  for (const auto& [target, candidates, finest, expected] :
+       std::vector<std::tuple<double, std::vector<int>, int, std::string>>{
+           {0.0, {4, 8}, 16, "positive"}, {0.001, {8, 4}, 16, "increase"}, {0.001, {4, 16}, 16, "below the finest"},
+           {0.001, {1, 4}, 16, "from 2"}}) {
+    md::ResolutionChoiceRequest study;
+    study.surface_error_m = target;
+    study.candidates = candidates;
+    study.finest = finest;
+    EXPECT_CONTAINS(errorMessageOf<std::invalid_argument>(
+                        [&] { md::chooseResolutions({}, {}, skeleton, "pelvis", md::nodeDefaultSettings(), study); }),
+                    expected);
+  }
 }

@@ -83,6 +83,10 @@ std::string sceneYaml(const ScenePreparation& p) {
       << "  color: " << colourList(m.colour) << "\n"
       << "  rest_volume_ml: " << fixed(m.volume_m3 * 1e6, 1) << "\n"
       << "  source: " << doubleQuoted(fs::absolute(m.source.mesh_file).lexically_normal().string()) << "\n";
+    if (p.resolution)
+      for (const MuscleResolution& chosen : p.resolution->muscles)
+        if (chosen.muscle == m.source.name)
+          y << "  particles_per_fibre: " << chosen.chosen << "  # chosen for the surface error target (report.md)\n";
     if (m.sites.empty() && m.sites.reference_muscles.empty()) continue;
     // The tendons' paths, each point in its link's frame (metres): the node runs the fibre ends' tendons through them.
     for (const auto& [key, path] : {std::pair{"origin_path", &m.sites.origin_path},
@@ -150,6 +154,35 @@ std::string attachmentSitesText(const PreparedMuscle& m) {
     r << "\n";
   }
   for (const std::string& note : m.sites.notes) r << "  - " << note << ".\n";
+  return r.str();
+}
+
+// The per-muscle resolution study: each candidate's worst surface RMS to the finest model, and the choice.
+std::string resolutionSection(const ScenePreparation& p) {
+  std::ostringstream r;
+  if (!p.resolution_problem.empty())
+    r << "## Resolution per muscle\n\nThe resolutions could not be chosen: " << p.resolution_problem << "\n\n";
+  if (!p.resolution) return r.str();
+  const ResolutionChoice& c = *p.resolution;
+  r << "## Resolution per muscle\n\nEach muscle's particles per fibre: the coarsest whose skinned surface (before the "
+       "bone contact and the volume projection) stays within the target RMS of the finest model's at every checked "
+       "pose, each model solved cold to convergence (the node's settings). Checked poses: ";
+  for (std::size_t k = 0; k < c.poses.size(); ++k) r << (k ? ", " : "") << c.poses[k];
+  r << ". Measured in " << fixed(c.seconds, 0) << " s; the worst RMS (and largest vertex distance) in mm:\n\n| muscle |";
+  for (std::size_t k = 0; k + 1 < c.resolutions.size(); ++k) r << " " << c.resolutions[k] << " per fibre |";
+  r << " chosen |\n| --- |";
+  for (std::size_t k = 0; k + 1 < c.resolutions.size(); ++k) r << " ---: |";
+  r << " ---: |\n";
+  for (const MuscleResolution& m : c.muscles) {
+    r << "| " << m.muscle << " |";
+    for (std::size_t k = 0; k < m.worst_rms_m.size(); ++k)
+      r << " " << fixed(m.worst_rms_m[k] * 1e3, 2) << " (" << fixed(m.worst_max_m[k] * 1e3, 1) << ") |";
+    r << " " << m.chosen << (m.met ? "" : " (**target not met**)") << " |\n";
+  }
+  r << "\nModel size, all muscles at one resolution:";
+  for (std::size_t k = 0; k < c.model_particles.size(); ++k)
+    r << (k ? "," : "") << " " << fixed(c.model_particles[k], 0) << " particles at " << c.resolutions[k];
+  r << " per fibre (the last the reference).\n\n";
   return r.str();
 }
 
@@ -251,6 +284,7 @@ std::string reportMarkdown(const ScenePreparation& p) {
     r << " |\n";
   }
   r << "\n## Muscles\n\n" << musclesTable(p) << "\n";
+  r << resolutionSection(p);
   for (const PreparedMuscle& m : p.muscles) r << muscleSection(p, m);
   if (!p.warnings.empty() || !p.model_problem.empty()) {
     r << "## Warnings of the model build\n\n";

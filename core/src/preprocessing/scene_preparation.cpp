@@ -4,6 +4,7 @@
 #include "muscle_deformation/core/io/mesh_io.hpp"
 #include "muscle_deformation/core/base/inside_test.hpp"
 #include "muscle_deformation/core/scene/opensim_model.hpp"
+#include "muscle_deformation/preprocessing/resolution_choice.hpp"
 #include "muscle_deformation/preprocessing/scene_directory.hpp"
 
 #include <algorithm>
@@ -233,9 +234,9 @@ void carveBonesAtRest(ScenePreparation& preparation, const Skeleton& skeleton,
   }
 }
 
-// The attachments the node will make with `settings` (fixed particles per bone, tendons), from the model builder.
-void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings,
-                        const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
+// The prepared muscles as the node will model them: surface, fibres, links and tendon paths (scene frame at rest).
+std::vector<Muscle> modelMuscles(const ScenePreparation& preparation,
+                                 const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
   std::vector<Muscle> muscles;
   for (const PreparedMuscle& prepared : preparation.muscles) {
     if (!prepared.prepared()) continue;
@@ -251,6 +252,13 @@ void measureAttachments(ScenePreparation& preparation, const ModelSettings& sett
         path->push_back({site.site.link, rest_link_poses.at(site.site.link) * site.site.point});
     muscles.push_back(std::move(muscle));
   }
+  return muscles;
+}
+
+// The attachments the node will make with `settings` (fixed particles per bone, tendons), from the model builder.
+void measureAttachments(ScenePreparation& preparation, const ModelSettings& settings,
+                        const std::map<std::string, Eigen::Isometry3d>& rest_link_poses) {
+  const std::vector<Muscle> muscles = modelMuscles(preparation, rest_link_poses);
   if (muscles.empty()) return;
   try {
     ModelBuildReport report;
@@ -433,6 +441,21 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
     measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
   }
   measureAttachments(preparation, request.model, rest_link_poses);
+  if (request.resolution) {
+    const std::vector<Muscle> muscles = modelMuscles(preparation, rest_link_poses);
+    if (!muscles.empty()) {
+      say("choosing each muscle's particles per fibre for " +
+          std::to_string(request.resolution->surface_error_m * 1e3).substr(0, 4) + " mm surface RMS (" +
+          std::to_string(request.resolution->candidates.size() + 1) + " models)");
+      try {
+        preparation.resolution = chooseResolutions(muscles, preparation.bones, skeleton, preparation.frame,
+                                                   nodeDefaultSettings(), *request.resolution, say);
+      } catch (const std::exception& e) {
+        preparation.resolution_problem = e.what();
+        say("the resolutions could not be chosen: " + preparation.resolution_problem);
+      }
+    }
+  }
   writeSceneDirectory(preparation);
   return preparation;
 }

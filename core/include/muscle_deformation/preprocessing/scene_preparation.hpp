@@ -12,6 +12,7 @@
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/preprocessing/attachment_sites.hpp"
 #include "muscle_deformation/preprocessing/fibre_generator.hpp"
+#include "muscle_deformation/preprocessing/resolution_choice.hpp"
 
 #include <array>
 #include <functional>
@@ -59,6 +60,9 @@ struct ScenePreparationRequest {
   ModelSettings model;           // the attachment rule the report shows (the node's defaults)
   OpenSimSiteRequest osim;       // attachment sites from an OpenSim model of the same skeleton (none: osim_file empty)
   RestOverlapRule rest_overlaps = RestOverlapRule::report;
+  // Each muscle's particles per fibre chosen for a surface error target (resolution_choice.hpp) and written into the
+  // scene; none: every muscle at the node's resolution.
+  std::optional<ResolutionChoiceRequest> resolution;
 };
 
 // One collision mesh of the URDF, as the node will load it.
@@ -112,6 +116,8 @@ struct ScenePreparation {
   int fibres_asked = 0;
   std::string osim_file;                // the OpenSim model the sites come from (absolute; "" = none)
   RestOverlapRule rest_overlaps = RestOverlapRule::report;
+  std::optional<ResolutionChoice> resolution;  // ScenePreparationRequest::resolution: what was chosen and measured
+  std::string resolution_problem;              // why the resolutions could not be chosen ("" = chosen, or not asked)
   std::vector<BoneMeshCheck> bone_meshes;
   std::vector<Bone> bones;              // at rest in the scene frame, with the stand-ins in place
   std::vector<PreparedMuscle> muscles;  // in the order asked for
