@@ -80,6 +80,13 @@ std::string writeTemp(const std::string& name, const std::string& text) {
   return path.string();
 }
 
+// A scene of one muscle 'a' whose entry ends with `extra_key` (e.g. "color: [1, 2, 0]") on the file's line 5.
+std::string writeOneMuscleScene(const std::string& name, const std::string& extra_key) {
+  return writeTemp(name, "urdf: r.urdf\nframe: base\nmuscles:\n"
+                         "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
+                         "   " + extra_key + "}\n");
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -237,10 +244,7 @@ TEST(Scene, MissingKeyNamesTheFileAndLine) {
 }
 
 TEST(Scene, MalformedValuesAndYamlNameTheLine) {
-  const std::string colour = writeTemp("bad_colour.yaml",
-                                       "urdf: robot.urdf\nframe: base\nmuscles:\n"
-                                       "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
-                                       "   color: [1, 2, 0]}\n");
+  const std::string colour = writeOneMuscleScene("bad_colour.yaml", "color: [1, 2, 0]");
   const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(colour); });
   EXPECT_CONTAINS(message, " line 5");
   EXPECT_CONTAINS(message, "[0, 1]");
@@ -261,17 +265,11 @@ TEST(Scene, AMuscleMayGiveItsOwnParticlesPerFibre) {
   EXPECT_EQ(scene.muscles[0].particles_per_fibre, 12);
   EXPECT_EQ(scene.muscles[1].particles_per_fibre, 0);  // the model's
 
-  const std::string one = writeTemp("one_particle.yaml",
-                                    "urdf: r.urdf\nframe: base\nmuscles:\n"
-                                    "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
-                                    "   particles_per_fibre: 1}\n");
+  const std::string one = writeOneMuscleScene("one_particle.yaml", "particles_per_fibre: 1");
   const std::string message = md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(one); });
   EXPECT_CONTAINS(message, " line 5");
   EXPECT_CONTAINS(message, "'particles_per_fibre' of muscle 'a' is 1, must be in [2, 10000]");
-  const std::string words = writeTemp("many_particles.yaml",
-                                      "urdf: r.urdf\nframe: base\nmuscles:\n"
-                                      "- {name: a, surface: a.stl, fibres: a.vtk, origin_bone: b, insertion_bone: b,\n"
-                                      "   particles_per_fibre: many}\n");
+  const std::string words = writeOneMuscleScene("many_particles.yaml", "particles_per_fibre: many");
   EXPECT_CONTAINS(md::testing::errorMessageOf<md::SceneError>([&] { md::loadSceneDescription(words); }),
                   "'many' is not an integer");
 }

@@ -234,9 +234,21 @@ double largestDistance(const TriangleMesh& from, const SurfaceDistance& to) {
   return largest;
 }
 
-}  // namespace
-
-namespace {
+// A mesh's vertices in voxel units and its triangles, as OpenVDB takes them.
+struct VoxelMesh {
+  std::vector<openvdb::Vec3s> points;
+  std::vector<openvdb::Vec3I> triangles;
+  VoxelMesh(const TriangleMesh& mesh, double voxel) {
+    points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
+    for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
+      points.emplace_back(static_cast<float>(mesh.vertices(0, v) / voxel), static_cast<float>(mesh.vertices(1, v) / voxel),
+                          static_cast<float>(mesh.vertices(2, v) / voxel));
+    triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
+    for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
+      triangles.emplace_back(static_cast<unsigned>(mesh.triangles(0, t)), static_cast<unsigned>(mesh.triangles(1, t)),
+                             static_cast<unsigned>(mesh.triangles(2, t)));
+  }
+};
 
 // What a decimated surface must stay close to: the input (a rebuild keeps the input's shape) or the iso-surface as
 // extracted (a carve changes the input's shape on purpose; decimating must not undo it).
@@ -352,20 +364,9 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
 
   initialiseOpenVdbOnce();
   // The grid is built in voxel units (a unit transform, the vertices divided by the voxel): OpenVDB refuses a transform
-  // whose scale it takes for zero ("Non-zero scale values required"), which a millimetre-sized part in metres reaches.
-  std::vector<openvdb::Vec3s> points;
-  const auto scalePoints = [&](double voxel) {
-    points.clear();
-    points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
-    for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
-      points.emplace_back(static_cast<float>(mesh.vertices(0, v) / voxel), static_cast<float>(mesh.vertices(1, v) / voxel),
-                          static_cast<float>(mesh.vertices(2, v) / voxel));
-  };
-  std::vector<openvdb::Vec3I> triangles;
-  triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
-  for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
-    triangles.emplace_back(static_cast<unsigned>(mesh.triangles(0, t)), static_cast<unsigned>(mesh.triangles(1, t)),
-                           static_cast<unsigned>(mesh.triangles(2, t)));
+  // whose scale it takes for zero ("Non-zero scale values required"), which a millimetre-sized part in metres reaches
+  // (VoxelMesh).
+  //
   // The inside must reach deeper than the voxels the triangles cut: OpenVDB signs those from the nearest triangle, so a
   // sheet or a fin gets a skin of "inside" voxels a voxel thick on one side (a flat sheet of three triangles gave a
   // shell of 10,000 triangles). A real volume thinner than that at the first voxel is tried again at half of it, twice.
@@ -373,9 +374,10 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
   double deepest_voxels = 0;
   for (int attempt = 0; attempt < 3; ++attempt) {
     if (attempt > 0) report.voxel_m *= 0.5;
-    scalePoints(report.voxel_m);
+    const VoxelMesh voxels(mesh, report.voxel_m);
     const auto transform = openvdb::math::Transform::createLinearTransform(1.0);
-    grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*transform, points, triangles, kHalfBandVoxels);
+    grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*transform, voxels.points, voxels.triangles,
+                                                              kHalfBandVoxels);
     float deepest = 0;
     for (auto value = grid->tree().cbeginValueAll(); value; ++value) deepest = std::min(deepest, *value);
     deepest_voxels = -deepest;  // in voxels: the grid's unit
@@ -389,26 +391,6 @@ TriangleMesh rebuildFromLevelSet(const TriangleMesh& mesh, long target_triangles
 
   return closedDecimatedSurface(*grid, mesh, target_triangles, kRebuildMaxFactor, DecimationReference::input, report);
 }
-
-namespace {
-
-// A mesh's vertices in voxel units and its triangles, as OpenVDB takes them.
-struct VoxelMesh {
-  std::vector<openvdb::Vec3s> points;
-  std::vector<openvdb::Vec3I> triangles;
-  VoxelMesh(const TriangleMesh& mesh, double voxel) {
-    points.reserve(static_cast<std::size_t>(mesh.vertexCount()));
-    for (Eigen::Index v = 0; v < mesh.vertexCount(); ++v)
-      points.emplace_back(static_cast<float>(mesh.vertices(0, v) / voxel), static_cast<float>(mesh.vertices(1, v) / voxel),
-                          static_cast<float>(mesh.vertices(2, v) / voxel));
-    triangles.reserve(static_cast<std::size_t>(mesh.triangleCount()));
-    for (Eigen::Index t = 0; t < mesh.triangleCount(); ++t)
-      triangles.emplace_back(static_cast<unsigned>(mesh.triangles(0, t)), static_cast<unsigned>(mesh.triangles(1, t)),
-                             static_cast<unsigned>(mesh.triangles(2, t)));
-  }
-};
-
-}  // namespace
 
 TriangleMesh carvedFromLevelSet(const TriangleMesh& mesh, const std::vector<TriangleMesh>& cutters, double clearance_m,
                                 double voxel_m, long target_triangles, LevelSetRebuildReport& report) {
@@ -425,7 +407,7 @@ TriangleMesh carvedFromLevelSet(const TriangleMesh& mesh, const std::vector<Tria
   report.input_volume_m3 = std::abs(enclosedVolume(mesh));
   report.voxel_m = voxel_m;
   initialiseOpenVdbOnce();
-  const auto transform = openvdb::math::Transform::createLinearTransform(1.0);  // voxel units, as the rebuild
+  const auto transform = openvdb::math::Transform::createLinearTransform(1.0);  // voxel units (VoxelMesh)
   // The carved surface's distance field everywhere inside: a cutter reaching deep into it must reach its inactive
   // interior too, which a narrow band leaves at one value.
   const VoxelMesh carved(mesh, voxel_m);

@@ -164,10 +164,10 @@ std::vector<PathCandidate> pathCandidates(const std::string& muscle, const LinkW
     if (!end.site) return;
     PathCandidate site{std::string(which) + " site (command line)", {end.link, *end.site}, role};
     const bool origin_end = role == PathCandidate::Role::origin_site;
-    if (!candidates.empty() && (origin_end ? candidates.front() : candidates.back()).role == role) {
-      notes.push_back("the command line's " + std::string(which) + " site replaces " +
-                      (origin_end ? candidates.front() : candidates.back()).label);
-      (origin_end ? candidates.front() : candidates.back()) = site;
+    PathCandidate* model_site = candidates.empty() ? nullptr : origin_end ? &candidates.front() : &candidates.back();
+    if (model_site && model_site->role == role) {
+      notes.push_back("the command line's " + std::string(which) + " site replaces " + model_site->label);
+      *model_site = site;
     } else if (origin_end) {
       candidates.insert(candidates.begin(), site);
     } else {

@@ -87,22 +87,11 @@ ResolutionChoice chooseResolutions(const std::vector<Muscle>& muscles, const std
     throw std::invalid_argument("no muscle crosses a joint that bends: there is no pose to compare the resolutions at");
 
   // Bone transforms of each pose in the scene frame (the frame link's frame), from the rest poses.
-  const auto inFrame = [&](const JointValues& values) {
-    std::map<std::string, Eigen::Isometry3d> poses_now = skeleton.linkPoses(values);
-    const Eigen::Isometry3d to_frame = poses_now.at(frame).inverse();
-    for (auto& [link, pose] : poses_now) pose = to_frame * pose;
-    return poses_now;
-  };
-  const std::map<std::string, Eigen::Isometry3d> rest = inFrame({});
+  const std::map<std::string, Eigen::Isometry3d> rest = linkPosesInFrame(skeleton, frame);
   std::vector<BoneTransforms> transforms;
-  for (const JointValues& values : poses) {
-    const std::map<std::string, Eigen::Isometry3d> now = inFrame(values);
-    Pose pose;
-    for (const Bone& bone : bones)
-      if (now.count(bone.name) && rest.count(bone.name))
-        pose.bone_transforms[bone.name] = now.at(bone.name) * rest.at(bone.name).inverse();
-    transforms.push_back(boneTransformsOf(bones, pose));
-  }
+  for (const JointValues& values : poses)
+    transforms.push_back(
+        boneTransformsOf(bones, poseFromLinkPoses(bones, rest, linkPosesInFrame(skeleton, frame, values))));
 
   // Each resolution's skinned surfaces at each pose: [resolution][pose][muscle].
   std::vector<int> resolutions = request.candidates;

@@ -362,9 +362,7 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
                      "to (bones are the links' collision meshes)");
 
   // Link poses at the zero configuration in the scene frame: the sites are given in their links' frames.
-  std::map<std::string, Eigen::Isometry3d> rest_link_poses = skeleton.linkPoses({});
-  const Eigen::Isometry3d to_scene_frame = rest_link_poses.at(preparation.frame).inverse();
-  for (auto& [link, pose] : rest_link_poses) pose = to_scene_frame * pose;
+  const std::map<std::string, Eigen::Isometry3d> rest_link_poses = linkPosesInFrame(skeleton, preparation.frame);
   std::vector<std::string> links_with_bones;
   for (const Bone& bone : preparation.bones) links_with_bones.push_back(bone.name);
   std::optional<OpenSimModel> osim;
@@ -433,8 +431,7 @@ ScenePreparation prepareScene(const ScenePreparationRequest& request,
   measureOverlaps(preparation.muscles, preparation.bones, preparation.bone_meshes);
   preparation.rest_overlaps = request.rest_overlaps;
   if (request.rest_overlaps == RestOverlapRule::carve_bones) {
-    for (PreparedMuscle& muscle : preparation.muscles) muscle.overlaps_before_carving = std::move(muscle.overlaps);
-    for (PreparedMuscle& muscle : preparation.muscles) muscle.overlaps.clear();
+    for (PreparedMuscle& muscle : preparation.muscles) muscle.overlaps_before_carving.swap(muscle.overlaps);
     carveBonesAtRest(preparation, skeleton, rest_link_poses, say);
     preparation.bones = loadBones(sceneSkeletonPart(preparation.out_dir, preparation.frame, preparation.bone_meshes),
                                   skeleton, request.resolve_uri);

@@ -319,17 +319,6 @@ std::vector<std::string> linksMissingFrom(const SceneDescription& description, c
 
 namespace {
 
-// Link poses at the zero configuration, re-expressed in the scene frame `frame`.
-std::map<std::string, Eigen::Isometry3d> restPosesInFrame(const Skeleton& skeleton, const std::string& frame) {
-  if (!skeleton.link(frame)) throw SceneError("scene frame '" + frame + "' is not a link of the URDF");
-  std::map<std::string, Eigen::Isometry3d> poses = skeleton.linkPoses({});
-  const auto frame_pose = poses.find(frame);
-  if (frame_pose == poses.end()) throw SceneError("scene frame '" + frame + "' is not connected to the URDF root");
-  const Eigen::Isometry3d to_frame = frame_pose->second.inverse();
-  for (auto& [name, pose] : poses) pose = to_frame * pose;
-  return poses;
-}
-
 std::vector<Bone> bonesAtRest(const Skeleton& skeleton, const UriResolver& resolve_mesh,
                               const std::map<std::string, Eigen::Isometry3d>& rest) {
   std::vector<Bone> bones;
@@ -394,7 +383,7 @@ UriResolver withBoneSurfaces(const SceneDescription& scene, const Skeleton& skel
 }  // namespace
 
 std::vector<Bone> loadBones(const Skeleton& skeleton, const UriResolver& resolve_mesh, const std::string& frame) {
-  return bonesAtRest(skeleton, resolve_mesh, restPosesInFrame(skeleton, frame));
+  return bonesAtRest(skeleton, resolve_mesh, linkPosesInFrame(skeleton, frame));
 }
 
 std::vector<Bone> loadBones(const SceneDescription& scene, const Skeleton& skeleton, const UriResolver& resolve_mesh) {
@@ -427,7 +416,7 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
   Scene scene;
   scene.skeleton = skeleton;
   try {
-    scene.rest_link_poses = restPosesInFrame(skeleton, description.frame);
+    scene.rest_link_poses = linkPosesInFrame(skeleton, description.frame);
   } catch (const SceneError& e) {
     throw SceneError(description.path + ": " + e.what());
   }
@@ -550,14 +539,30 @@ std::vector<MuscleDescription> describedByName(const std::vector<Muscle>& muscle
 }
 
 Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses) {
+  return poseFromLinkPoses(scene.bones, scene.rest_link_poses, link_poses);
+}
+
+Pose poseFromLinkPoses(const std::vector<Bone>& bones, const std::map<std::string, Eigen::Isometry3d>& rest_link_poses,
+                       const std::map<std::string, Eigen::Isometry3d>& link_poses) {
   Pose pose;
-  for (const Bone& bone : scene.bones) {
+  for (const Bone& bone : bones) {
     const auto current = link_poses.find(bone.name);
-    const auto rest = scene.rest_link_poses.find(bone.name);
-    if (current == link_poses.end() || rest == scene.rest_link_poses.end()) continue;  // stays at rest
+    const auto rest = rest_link_poses.find(bone.name);
+    if (current == link_poses.end() || rest == rest_link_poses.end()) continue;  // stays at rest
     pose.bone_transforms[bone.name] = current->second * rest->second.inverse();
   }
   return pose;
+}
+
+std::map<std::string, Eigen::Isometry3d> linkPosesInFrame(const Skeleton& skeleton, const std::string& frame,
+                                                          const JointValues& values) {
+  if (!skeleton.link(frame)) throw SceneError("scene frame '" + frame + "' is not a link of the URDF");
+  std::map<std::string, Eigen::Isometry3d> poses = skeleton.linkPoses(values);
+  const auto frame_pose = poses.find(frame);
+  if (frame_pose == poses.end()) throw SceneError("scene frame '" + frame + "' is not connected to the URDF root");
+  const Eigen::Isometry3d to_frame = frame_pose->second.inverse();
+  for (auto& [name, pose] : poses) pose = to_frame * pose;
+  return poses;
 }
 
 }  // namespace muscle_deformation

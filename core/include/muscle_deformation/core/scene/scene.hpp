@@ -144,5 +144,13 @@ std::vector<Bone> loadBones(const SceneDescription& scene, const Skeleton& skele
 // The pose of the bones (rest -> current, scene frame) for link poses given in the scene frame, e.g. from tf or
 // from Skeleton::linkPoses: T_bone = T_link(current) * T_link(rest)^-1.
 Pose poseFromLinkPoses(const Scene& scene, const std::map<std::string, Eigen::Isometry3d>& link_poses);
+// The same from the bones and their links' rest poses, both in one frame (a scene being prepared has no Scene yet).
+Pose poseFromLinkPoses(const std::vector<Bone>& bones, const std::map<std::string, Eigen::Isometry3d>& rest_link_poses,
+                       const std::map<std::string, Eigen::Isometry3d>& link_poses);
+
+// Every link's pose at the joint values `values` (zero configuration: none), re-expressed in the frame of link `frame`
+// (the scene frame). Throws SceneError for a frame that is not a link of the skeleton or not connected to its root.
+std::map<std::string, Eigen::Isometry3d> linkPosesInFrame(const Skeleton& skeleton, const std::string& frame,
+                                                          const JointValues& values = {});
 
 }  // namespace muscle_deformation
