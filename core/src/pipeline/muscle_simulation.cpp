@@ -10,7 +10,7 @@ namespace muscle_deformation {
 namespace {
 
 // Adds one sweep solved past the frame's budget to the frame's statistics: its cost and the state it ended in.
-void addSweepPastBudget(const SolveStats& sweep, SolveStats& frame) {
+void addSweepToFrame(const SolveStats& sweep, SolveStats& frame) {
   frame.iterations += sweep.iterations;
   frame.mss_ms += sweep.mss_ms;
   frame.collision_ms += sweep.collision_ms;
@@ -50,7 +50,7 @@ std::string validate(const FrameStopping& stopping) {
 
 MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone> bones, SimulationSettings settings,
                                    int threads, const BoneFields& bone_fields)
-    : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings) {
+    : muscles_(std::move(muscles)), bones_(std::move(bones)), settings_(settings), threads_(threads) {
   for (std::size_t b = 0; b < bones_.size(); ++b) bones_[b].id = static_cast<int>(b);
   if (const std::string problem = validate(settings_.collision); !problem.empty())
     throw std::invalid_argument("collision settings: " + problem);
@@ -109,6 +109,7 @@ void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
   const double scale = settings_.block_descent.volume_stiffness;
   if (!(scale > 0) || !solver_->keepsVolume()) return;
   volume_ = std::make_unique<SkinnedVolume>(skinning, system_);
+  volume_->setThreads(parallelThreads(threads_, SolveLimits{}));
   // The springs' material constant (median k l0, as the solver's residual is measured in).
   std::vector<double> material;
   for (std::size_t s = 0; s < system_.springs.size(); ++s)
@@ -138,6 +139,29 @@ void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
     volume->curvatureTimes(position, *transforms, direction, weight, out);
   };
   solver_->setVolumeTerm(std::move(term));
+  resetVolumePressure();
+}
+
+void MuscleSimulation::resetVolumePressure() {
+  if (!volume_) return;
+  volume_target_m3_ = volume_->restVolumes();
+  solver_->setVolumeTargets(volume_target_m3_);
+}
+
+void MuscleSimulation::updateVolumePressure() {
+  if (!pressureBuilds() || !state_.position.allFinite()) return;
+  const double gain = settings_.block_descent.volume_pressure_gain;
+  std::vector<double> volumes;
+  volume_->volumes(state_.position, frame_transforms_, volumes);
+  const std::vector<double>& rest = volume_->restVolumes();
+  for (std::size_t m = 0; m < volumes.size(); ++m) {
+    // A muscle held from its volume by the bones (or a volume the skin cannot reach) would wind its pressure up
+    // without end: the target stays within kMaxVolumeTargetShift of the rest volume.
+    const double bound = kMaxVolumeTargetShift * std::abs(rest[m]);
+    const double shifted = volume_target_m3_[m] - gain * (volumes[m] - rest[m]);
+    volume_target_m3_[m] = std::clamp(shifted, rest[m] - bound, rest[m] + bound);
+  }
+  solver_->setVolumeTargets(volume_target_m3_);
 }
 
 StoppingSettings MuscleSimulation::mainSolveStopping(bool warm, const FrameStopping& stopping) const {
@@ -192,8 +216,29 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed
   // number of iterations instead (FrameStopping::cold_start_iterations).
   frame_transforms_ = transforms;
-  runSolver(transforms, mainSolveStopping(stats.warm_started, stopping), stopping, stats, false);
+  const StoppingSettings main = mainSolveStopping(stats.warm_started, stopping);
+  if (!stats.warm_started) resetVolumePressure();
+  if (!stats.warm_started && pressureBuilds() && main.rule == StoppingRule::iterations && main.max_iterations > 1) {
+    // A cold start carries no pressure from a frame before: the muscles' pressures build within its own sweeps, one
+    // update after each (the same update a warm frame gets once, after its solve).
+    StoppingSettings one_sweep = main;
+    one_sweep.max_iterations = 1;
+    runSolver(transforms, one_sweep, stopping, stats, false);
+    for (int sweep = 1; sweep < main.max_iterations && !stats.solver.diverged && !stats.solver.cancelled &&
+                        state_.position.allFinite();
+         ++sweep) {
+      updateVolumePressure();
+      FrameStats more;
+      more.has_collision = stats.has_collision;
+      runSolver(transforms, one_sweep, stopping, more, false);
+      addSweepToFrame(more.solver, stats.solver);
+      stats.collision = more.collision;
+    }
+  } else {
+    runSolver(transforms, main, stopping, stats, false);
+  }
   finishFrame(transforms, drag, false, stats);
+  updateVolumePressure();
   return stats;
 }
 
@@ -210,6 +255,7 @@ FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
   runSolver(previous_transforms_, stopping.sweeps, stopping, stats, true);
   const BoneTransforms transforms = previous_transforms_;
   finishFrame(transforms, solver_->dragsTissue(), true, stats);
+  updateVolumePressure();
   return stats;
 }
 
@@ -229,7 +275,7 @@ void MuscleSimulation::runSolver(const BoneTransforms& transforms, const Stoppin
       for (int extra = 0; extra < cap && needed() && !stats.solver.diverged && !stats.solver.cancelled &&
                           !stats.solver.time_limit_reached;
            ++extra) {
-        addSweepPastBudget(solver_->solve(state_, one_sweep), stats.solver);
+        addSweepToFrame(solver_->solve(state_, one_sweep), stats.solver);
         ++count;
         stats.collision = collision_->measure(state_);
       }

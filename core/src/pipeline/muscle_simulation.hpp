@@ -73,6 +73,7 @@ class MuscleSimulation {
   std::vector<Muscle> muscles_;
   std::vector<Bone> bones_;
   SimulationSettings settings_;
+  int threads_ = 0;  // as constructed (PipelineSettings::threads)
   ModelBuildReport build_report_;
   RestOverlapSummary rest_overlaps_;
   MassSpringSystem system_;
@@ -88,6 +89,14 @@ class MuscleSimulation {
   static constexpr double kTypicalResidualWeight = 0.05;  // of each new frame: about the last 20 frames (1/3 s at 60 Hz)
 
   std::unique_ptr<SkinnedVolume> volume_;  // keepVolume(); null without a volume term
+  // Per muscle, the volume term's target (VolumeTerm::target_volume_m3): the rest volume until a warm frame's error
+  // moves it (updateVolumePressure); back to the rest volume at a cold start.
+  std::vector<double> volume_target_m3_;
+  static constexpr double kMaxVolumeTargetShift = 0.3;  // of the rest volume
+  // After a solved frame: each muscle's pressure takes on volume_pressure_gain of its remaining volume error.
+  void updateVolumePressure();
+  bool pressureBuilds() const { return volume_ && settings_.block_descent.volume_pressure_gain > 0; }
+  void resetVolumePressure();
   BoneTransforms frame_transforms_;        // the bones of the frame being solved (the volume term's skin reads them)
 
   ParticleState state_;

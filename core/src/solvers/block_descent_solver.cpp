@@ -90,7 +90,7 @@ inline void addVolumeForce(const VolumeTerm& term, const std::vector<double>& vo
   const double k = term.stiffness[m];
   if (k <= 0) return;
   const Eigen::Vector3d g = gradients.col(p);
-  const double pressure = k * (volumes[m] - term.rest_volume_m3[m]);
+  const double pressure = k * (volumes[m] - term.target(m));
   block.fx -= pressure * g.x();
   block.fy -= pressure * g.y();
   block.fz -= pressure * g.z();
@@ -176,6 +176,8 @@ std::string validate(const BlockDescentSettings& settings) {
     return "tissue_relaxation_s must be a finite number >= 0";
   if (!(settings.volume_stiffness >= 0) || !std::isfinite(settings.volume_stiffness))
     return "volume_stiffness must be a finite number >= 0";
+  if (!(settings.volume_pressure_gain >= 0 && settings.volume_pressure_gain <= 1))
+    return "volume_pressure_gain must lie in [0, 1]";
   if (!(settings.drag_along_fibre >= 0 && settings.drag_along_fibre <= 1))
     return "drag_along_fibre must lie in [0, 1]";
   return {};
@@ -302,7 +304,8 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
 
 void BlockDescentSolver::setVolumeTerm(VolumeTerm term) {
   if (term.active() && (static_cast<int>(term.stiffness.size()) != system_.muscleCount() ||
-                        term.rest_volume_m3.size() != term.stiffness.size()))
+                        term.rest_volume_m3.size() != term.stiffness.size() ||
+                        (!term.target_volume_m3.empty() && term.target_volume_m3.size() != term.stiffness.size())))
     throw std::invalid_argument("block descent: a volume term of " + std::to_string(term.stiffness.size()) +
                                 " muscles for a system of " + std::to_string(system_.muscleCount()));
   volume_ = std::move(term);
@@ -346,7 +349,7 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   }
   for (std::size_t m = 0; m < muscles; ++m) {
     const double k = volume_.stiffness[m];
-    colour_a_[m] = k * (volume_now_[m] - volume_.rest_volume_m3[m] + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
+    colour_a_[m] = k * (volume_now_[m] - volume_.target(m) + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
   }
   // A few operations per particle: serial, a parallel region per colour would cost more in its barrier.
   for (std::int32_t k = begin; k < end; ++k) {
@@ -371,6 +374,15 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   }
 }
 
+void BlockDescentSolver::setVolumeTargets(const std::vector<double>& target_volume_m3) {
+  if (!volume_.active()) return;
+  if (target_volume_m3.size() != volume_.stiffness.size())
+    throw std::invalid_argument("block descent: " + std::to_string(target_volume_m3.size()) +
+                                " volume targets for a volume term of " + std::to_string(volume_.stiffness.size()) +
+                                " muscles");
+  volume_.target_volume_m3 = target_volume_m3;
+}
+
 void BlockDescentSolver::evaluateVolume(const Eigen::Matrix3Xd& position) {
   if (!volume_.active()) return;
   volume_.evaluate(position, volume_now_, volume_gradient_);
@@ -380,7 +392,7 @@ double BlockDescentSolver::volumeEnergy() const {
   double energy = 0;
   if (!volume_.active()) return energy;
   for (std::size_t m = 0; m < volume_now_.size(); ++m) {
-    const double excess = volume_now_[m] - volume_.rest_volume_m3[m];
+    const double excess = volume_now_[m] - volume_.target(m);
     energy += 0.5 * volume_.stiffness[m] * excess * excess;
   }
   return energy;
@@ -570,7 +582,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const double volume_k = volume_on ? volume_.stiffness[static_cast<std::size_t>(muscle)] : 0.0;
       const Eigen::Vector3d volume_g = volume_on ? Eigen::Vector3d(volume_gradient_.col(p)) : Eigen::Vector3d::Zero();
       const double volume_excess =
-          volume_on ? volume_now_[static_cast<std::size_t>(muscle)] - volume_.rest_volume_m3[static_cast<std::size_t>(muscle)]
+          volume_on ? volume_now_[static_cast<std::size_t>(muscle)] - volume_.target(static_cast<std::size_t>(muscle))
                     : 0.0;
       const Eigen::Vector3d start = position.col(p);
       // A particle with contacts takes the volume term into its own step, so that the step's halving minds it: the
@@ -799,7 +811,7 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
     Eigen::Matrix3Xd unused;
     volume_.evaluate(position, volumes, unused);
     for (std::size_t m = 0; m < volumes.size(); ++m) {
-      const double excess = volumes[m] - volume_.rest_volume_m3[m];
+      const double excess = volumes[m] - volume_.target(m);
       energy += 0.5 * volume_.stiffness[m] * excess * excess;
     }
   }
@@ -853,7 +865,7 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
       along[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(i)])] +=
           volume_gradient_.col(i).dot(free_direction.col(i));
     for (std::size_t m = 0; m < weight.size(); ++m)
-      weight[m] = volume_.stiffness[m] * (volume_now_[m] - volume_.rest_volume_m3[m]);
+      weight[m] = volume_.stiffness[m] * (volume_now_[m] - volume_.target(m));
     volume_.curvature_times(position, free_direction, weight, volume_product);
     for (Eigen::Index i = 0; i < free_direction.cols(); ++i) {
       const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(i)]);

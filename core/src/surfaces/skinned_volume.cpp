@@ -49,7 +49,10 @@ void SkinnedVolume::volumes(const Eigen::Matrix3Xd& position, const BoneTransfor
                             std::vector<double>& volumes) const {
   const std::vector<MuscleSkin>& skins = skinning_.muscles();
   volumes.assign(skins.size(), 0.0);
-  for (std::size_t m = 0; m < skins.size(); ++m) {
+  const int muscles = static_cast<int>(skins.size());
+#pragma omp parallel for num_threads(threads_) schedule(dynamic)
+  for (int mi = 0; mi < muscles; ++mi) {
+    const std::size_t m = static_cast<std::size_t>(mi);
     skins[m].update(position, transforms, vertices_[m]);
     volumes[m] = enclosedVolume(vertices_[m], skins[m].triangles());
   }
@@ -60,7 +63,12 @@ void SkinnedVolume::evaluate(const Eigen::Matrix3Xd& position, const BoneTransfo
   const std::vector<MuscleSkin>& skins = skinning_.muscles();
   volumes.assign(skins.size(), 0.0);
   gradients.setZero(3, particle_count_);
-  for (std::size_t m = 0; m < skins.size(); ++m) {
+  // One muscle per thread: each writes its own vertices and its own particles' columns, and sums its volume alone, so
+  // the result does not depend on the thread count.
+  const int muscles = static_cast<int>(skins.size());
+#pragma omp parallel for num_threads(threads_) schedule(dynamic)
+  for (int mi = 0; mi < muscles; ++mi) {
+    const std::size_t m = static_cast<std::size_t>(mi);
     const MuscleSkin& skin = skins[m];
     Vertices& v = vertices_[m];
     skin.update(position, transforms, v);
@@ -89,9 +97,12 @@ void SkinnedVolume::curvatureTimes(const Eigen::Matrix3Xd& position, const BoneT
                                    Eigen::Matrix3Xd& out) const {
   const std::vector<MuscleSkin>& skins = skinning_.muscles();
   out.setZero(3, particle_count_);
-  Vertices u;
-  for (std::size_t m = 0; m < skins.size(); ++m) {
+  const int muscles = static_cast<int>(skins.size());
+#pragma omp parallel for num_threads(threads_) schedule(dynamic)
+  for (int mi = 0; mi < muscles; ++mi) {
+    const std::size_t m = static_cast<std::size_t>(mi);
     if (m >= weight.size() || weight[m] == 0.0) continue;
+    Vertices u;
     const MuscleSkin& skin = skins[m];
     Vertices& v = vertices_[m];
     skin.update(position, transforms, v);

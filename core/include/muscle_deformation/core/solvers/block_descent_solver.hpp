@@ -67,6 +67,11 @@ struct BlockDescentSettings {
   // the skin follows with about volume_stiffness x e of the springs' material constant. 0 = none (the seeds' model);
   // the pipeline supplies the volume (the skinned surface's) when this is above 0.
   double volume_stiffness = 0.0;
+  // The share of a frame's remaining volume error that each muscle's pressure takes on after the frame (the
+  // augmented Lagrangian's multiplier update, once per solved frame, by the simulation: VolumeTerm::target_volume_m3),
+  // in [0, 1]. 0 = a plain penalty, whose answer keeps an error that falls only as 1 / volume_stiffness; above 0 a
+  // steady or slow motion drives the error towards none over the frames, at a stiffness the sweeps still settle with.
+  double volume_pressure_gain = 0.0;
 };
 
 // Returns an empty string when the settings are usable, otherwise what is wrong.
@@ -114,6 +119,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   bool keepsVolume() const override { return true; }
   void restLengthsChanged() override;
   void setVolumeTerm(VolumeTerm term) override;
+  void setVolumeTargets(const std::vector<double>& target_volume_m3) override;
   const VolumeTerm& volumeTerm() const { return volume_; }
   // Clamped to [kMinFrameIntervalS, kMaxFrameIntervalS] (a pose stream's gaps, whatever their cause, give the tissue
   // no more than a tenth of a second to relax in); kNominalFrameIntervalS until set.

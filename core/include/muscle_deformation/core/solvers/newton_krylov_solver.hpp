@@ -45,6 +45,9 @@ class NewtonKrylovSolver final : public SoftBodySolver {
   bool keepsVolume() const override { return true; }
   void restLengthsChanged() override { energy_.restLengthsChanged(); }
   void setVolumeTerm(VolumeTerm term) override { energy_.setVolumeTerm(std::move(term)); }
+  void setVolumeTargets(const std::vector<double>& target_volume_m3) override {
+    energy_.setVolumeTargets(target_volume_m3);
+  }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
   void setFrameInterval(double seconds) override { energy_.setFrameInterval(seconds); }
 

@@ -8,6 +8,7 @@
 #include "muscle_deformation/core/solvers/volume_term.hpp"
 
 #include <string>
+#include <vector>
 
 namespace muscle_deformation {
 
@@ -58,6 +59,9 @@ class SoftBodySolver {
   // pose: the solver reads them again before its next solve.
   virtual void restLengthsChanged() = 0;
   virtual void setVolumeTerm(VolumeTerm) {}
+  // New per-muscle targets of the volume term (VolumeTerm::target_volume_m3: the muscles' pressures, carried from
+  // frame to frame by the simulation); ignored without a volume term.
+  virtual void setVolumeTargets(const std::vector<double>& /*target_volume_m3*/) {}
 };
 
 }  // namespace muscle_deformation

@@ -18,6 +18,14 @@ namespace muscle_deformation {
 struct VolumeTerm {
   std::vector<double> rest_volume_m3;  // per muscle
   std::vector<double> stiffness;       // per muscle, k_m (J/m^6); 0 leaves a muscle out
+  // Per muscle, the volume the term pulls towards: the rest volume less the muscle's pressure p_m over k_m, so that
+  // E_m = k_m / 2 (V_m - target_m)^2 = p_m (V_m - V_m,rest) + k_m / 2 (V_m - V_m,rest)^2 + const, the augmented
+  // Lagrangian of the constraint V_m = V_m,rest. Empty: the rest volumes (no pressure, a plain penalty).
+  std::vector<double> target_volume_m3;
+
+  double target(std::size_t muscle) const {
+    return target_volume_m3.empty() ? rest_volume_m3[muscle] : target_volume_m3[muscle];
+  }
   // Every muscle's volume at `position` and each particle's gradient of its own muscle's volume (m^2, zero where the
   // volume does not depend on the particle).
   std::function<void(const Eigen::Matrix3Xd& position, std::vector<double>& volumes, Eigen::Matrix3Xd& gradients)>

@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <vector>
 
 namespace muscle_deformation {
@@ -42,8 +43,11 @@ class SkinnedVolume {
   void curvatureTimes(const Eigen::Matrix3Xd& position, const BoneTransforms& transforms,
                       const Eigen::Matrix3Xd& direction, const std::vector<double>& weight,
                       Eigen::Matrix3Xd& out) const;
+  // Threads the muscles are shared out on (the results do not depend on it); 1 until set.
+  void setThreads(int threads) { threads_ = std::max(1, threads); }
 
  private:
+  int threads_ = 1;
   const SurfaceSkinning& skinning_;
   std::vector<double> rest_volume_m3_, rest_area_m2_;
   std::vector<int> skin_particles_;
