@@ -511,3 +511,45 @@ TEST(BlockDescent, ResidualOfMeasuresAnyStateAndIsSmallAtTheSolversEquilibrium) 
   solver.solve(state, converging(100000, 1e-9));
   EXPECT_LT(solver.residualOf(state), 1e-8);
 }
+
+// A fibre of 40 links between fixed ends whose far end is pulled 20 % out: point sweeps see each particle's neighbours
+// held, so the uniform stretch travels along the fibre one link per sweep; the coarse step along the fibre (hat
+// functions of the position along it) moves the whole fibre at once. Both reach the same equilibrium.
+TEST(BlockDescent, TheCoarseStepAlongTheFibresStretchesAWholeFibreAtOnceAndKeepsItsEquilibrium) {
+  const int links = 40;
+  MassSpringSystem system = fixedChain(links);
+  system.fibre_of.assign(static_cast<std::size_t>(links) + 1, 0);
+  system.sample_of.resize(static_cast<std::size_t>(links) + 1);
+  for (int i = 0; i <= links; ++i) system.sample_of[static_cast<std::size_t>(i)] = i;
+  const auto pulled = [&] {
+    ParticleState state = stateAt(system.rest_position);
+    state.position(0, links) = 1.2 * links;
+    return state;
+  };
+  double residual_after_five[2] = {0, 0};
+  for (const int modes : {0, 5}) {
+    BlockDescentSettings settings;
+    settings.fibre_modes = modes;
+    BlockDescentSolver solver(system, settings);
+    ParticleState state = pulled();
+    const SolveStats five = solver.solve(state, StoppingSettings::afterIterations(5));
+    residual_after_five[modes > 0] = five.residual;
+    if (modes > 0) EXPECT_GT(five.fibre_steps, 0);
+    const SolveStats settled = solver.solve(state, converging(100000, 1e-9));
+    EXPECT_TRUE(settled.converged) << modes << " modes";
+    for (int i = 0; i <= links; ++i) EXPECT_NEAR(state.position(0, i), 1.2 * i, 1e-6) << modes << " modes";
+  }
+  std::printf("residual after 5 sweeps: %.3e point sweeps alone, %.3e with the coarse step along the fibre\n",
+              residual_after_five[0], residual_after_five[1]);
+  EXPECT_LT(residual_after_five[1], 0.1 * residual_after_five[0]);
+}
+
+TEST(BlockDescent, FibreModesOutsideTheirRangeAreRefused) {
+  BlockDescentSettings settings;
+  for (const int modes : {-1, 1, 17}) {
+    settings.fibre_modes = modes;
+    EXPECT_FALSE(validate(settings).empty()) << modes;
+  }
+  settings.fibre_modes = 4;
+  EXPECT_TRUE(validate(settings).empty());
+}

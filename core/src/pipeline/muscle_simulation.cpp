@@ -25,6 +25,7 @@ void addSweepToFrame(const SolveStats& sweep, SolveStats& frame) {
   frame.converged = sweep.converged;
   frame.contacts = sweep.contacts;
   frame.divergence_recoveries += sweep.divergence_recoveries;
+  frame.fibre_steps += sweep.fibre_steps;
   frame.diverged = sweep.diverged;
   frame.cancelled = sweep.cancelled;
   frame.time_limit_reached = frame.time_limit_reached || sweep.time_limit_reached;

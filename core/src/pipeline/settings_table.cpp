@@ -111,6 +111,10 @@ std::vector<SettingSpec> buildTable() {
              "frame energy (0 = none); a relative volume change e pulls each skin particle with about this x e of the "
              "springs' material constant",
              [block_descent](CoreSettings& s) -> double& { return block_descent(s).volume_stiffness; }),
+      integer("fibre_modes", "count", 0, 16,
+              "block_descent: a coarse step moves each muscle's particles along their fibres by a profile of this "
+              "many hat functions before every sweep (0 = none; the belly's length is the sweeps' slowest mode)",
+              [block_descent](CoreSettings& s) -> int& { return block_descent(s).fibre_modes; }),
       number("volume_pressure_gain", "", 0.0, 1.0,
              "block_descent / newton_krylov: the share of a frame's remaining volume error each muscle's pressure "
              "takes on after the frame (0 = a plain penalty; above 0 the volume error of a steady or slow motion "

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <map>
 #include <cmath>
 #include <stdexcept>
 
@@ -176,6 +177,8 @@ std::string validate(const BlockDescentSettings& settings) {
     return "tissue_relaxation_s must be a finite number >= 0";
   if (!(settings.volume_stiffness >= 0) || !std::isfinite(settings.volume_stiffness))
     return "volume_stiffness must be a finite number >= 0";
+  if (settings.fibre_modes < 0 || settings.fibre_modes > 16) return "fibre_modes must lie in [0, 16]";
+  if (settings.fibre_modes == 1) return "fibre_modes must be 0 (none) or at least 2 (hat functions along the fibre)";
   if (!(settings.volume_pressure_gain >= 0 && settings.volume_pressure_gain <= 1))
     return "volume_pressure_gain must lie in [0, 1]";
   if (!(settings.drag_along_fibre >= 0 && settings.drag_along_fibre <= 1))
@@ -274,6 +277,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
   buildColouring();
   updateDragWeights();
+  if (settings_.fibre_modes > 0) buildFibreModes();
   // Springs repacked in visiting order: a sweep then reads them front to back, instead of jumping through the
   // particle-ordered lists colour by colour (the sweep's cost is mostly reading them).
   std::vector<NeighbourSpring> visit_order;
@@ -788,6 +792,20 @@ inline ContactEntry atPositions(const ContactEntry& entry, const Eigen::Matrix3X
 }  // namespace
 
 double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
+  double energy = energyWithoutVolume(position);
+  if (volume_.active()) {
+    std::vector<double> volumes;
+    Eigen::Matrix3Xd unused;
+    volume_.evaluate(position, volumes, unused);
+    for (std::size_t m = 0; m < volumes.size(); ++m) {
+      const double excess = volumes[m] - volume_.target(m);
+      energy += 0.5 * volume_.stiffness[m] * excess * excess;
+    }
+  }
+  return energy;
+}
+
+double BlockDescentSolver::energyWithoutVolume(const Eigen::Matrix3Xd& position) const {
   double energy = 0;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::int32_t p = coloured_particles_[slot];
@@ -806,16 +824,164 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
     }
     energy += dragEnergy(p, x, drag_anchor_->col(p));
   }
-  if (volume_.active()) {
-    std::vector<double> volumes;
-    Eigen::Matrix3Xd unused;
-    volume_.evaluate(position, volumes, unused);
-    for (std::size_t m = 0; m < volumes.size(); ++m) {
-      const double excess = volumes[m] - volume_.target(m);
+  return energy;
+}
+
+void BlockDescentSolver::buildFibreModes() {
+  const Eigen::Index n = system_.particleCount();
+  fibre_parameter_.setZero(n);
+  slot_of_.assign(static_cast<std::size_t>(n), -1);
+  for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot)
+    slot_of_[static_cast<std::size_t>(coloured_particles_[slot])] = static_cast<std::int32_t>(slot);
+  if (system_.fibre_of.size() != static_cast<std::size_t>(n) || system_.sample_of.size() != static_cast<std::size_t>(n))
+    return;
+  // The last sample of each (muscle, fibre): a particle's parameter is its sample over it.
+  std::map<std::pair<std::int32_t, std::int32_t>, std::int32_t> last_sample;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    if (system_.fibre_of[k] == kTendonAnchor) continue;
+    std::int32_t& last = last_sample[{system_.muscle_of[k], system_.fibre_of[k]}];
+    last = std::max(last, system_.sample_of[k]);
+  }
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    if (system_.fibre_of[k] == kTendonAnchor) continue;
+    const std::int32_t last = last_sample[{system_.muscle_of[k], system_.fibre_of[k]}];
+    fibre_parameter_[i] = last > 0 ? static_cast<double>(system_.sample_of[k]) / last : 0.5;
+  }
+}
+
+bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
+  const int modes = settings_.fibre_modes;
+  const int muscles = system_.muscleCount();
+  const Eigen::Matrix3Xd along = fibreDirections(system_, position);
+  if (along.cols() != position.cols()) return false;
+  // Hat function j of the position u along the fibre, with its knots spread evenly over [0, 1].
+  const auto hats = [modes](double u, Eigen::VectorXd& phi) {
+    phi.setZero(modes);
+    const double scaled = std::clamp(u, 0.0, 1.0) * (modes - 1);
+    const int below = std::min(static_cast<int>(scaled), modes - 2);
+    const double fraction = scaled - below;
+    phi[below] = 1.0 - fraction;
+    phi[below + 1] = fraction;
+  };
+  const auto quadratic = [](const Block& b, const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
+    return u.x() * (b.hxx * v.x() + b.hxy * v.y() + b.hxz * v.z()) +
+           u.y() * (b.hxy * v.x() + b.hyy * v.y() + b.hyz * v.z()) +
+           u.z() * (b.hxz * v.x() + b.hyz * v.y() + b.hzz * v.z());
+  };
+  std::vector<Eigen::MatrixXd> hessian(static_cast<std::size_t>(muscles), Eigen::MatrixXd::Zero(modes, modes));
+  std::vector<Eigen::VectorXd> force(static_cast<std::size_t>(muscles), Eigen::VectorXd::Zero(modes));
+  std::vector<Eigen::VectorXd> volume_along(static_cast<std::size_t>(muscles), Eigen::VectorXd::Zero(modes));
+  Eigen::VectorXd phi, phi_other;
+  for (const std::int32_t p : free_particles_) {
+    const std::size_t pk = static_cast<std::size_t>(p);
+    const Eigen::Vector3d t = along.col(p);
+    if (t.squaredNorm() == 0) continue;
+    const std::size_t m = static_cast<std::size_t>(system_.muscle_of[pk]);
+    hats(fibre_parameter_[p], phi);
+    const std::int32_t slot = slot_of_[pk];
+    const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
+    Block total;
+    for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
+      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+      Block block;
+      addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
+                spring.rest_length, block);
+      total.fx += block.fx;
+      total.fy += block.fy;
+      total.fz += block.fz;
+      // The spring's Hessian is [H -H; -H H] over (p, other): p's own term here, the cross term once per free pair
+      // (from its lower-numbered end), the other's own term from its own visit.
+      hessian[m] += quadratic(block, t, t) * phi * phi.transpose();
+      const std::size_t ok = static_cast<std::size_t>(spring.other);
+      if (system_.is_fixed[ok] || spring.other < p || system_.muscle_of[ok] != system_.muscle_of[pk]) continue;
+      const Eigen::Vector3d t_other = along.col(spring.other);
+      if (t_other.squaredNorm() == 0) continue;
+      hats(fibre_parameter_[spring.other], phi_other);
+      const double cross = quadratic(block, t, t_other);
+      hessian[m] -= cross * (phi * phi_other.transpose() + phi_other * phi.transpose());
+    }
+    const Eigen::Vector3d x = position.col(p);
+    for (std::int32_t e = contact_begin_[pk]; e < contact_begin_[pk + 1]; ++e) {
+      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+      Block block;
+      addContact(x, atPositions(entry, position),
+                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+      total.fx += block.fx;
+      total.fy += block.fy;
+      total.fz += block.fz;
+      hessian[m] += quadratic(block, t, t) * phi * phi.transpose();  // the partner held (a stiffer, safe model)
+    }
+    Block drag;
+    addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), drag);
+    drag.addIsotropic(regularisation_[p]);
+    total.fx += drag.fx;
+    total.fy += drag.fy;
+    total.fz += drag.fz;
+    hessian[m] += quadratic(drag, t, t) * phi * phi.transpose();
+    if (volume_.active() && volume_gradient_.cols() == position.cols() && volume_.stiffness[m] > 0) {
+      const double g_along = volume_gradient_.col(p).dot(t);
+      volume_along[m] += g_along * phi;
+      const double pressure = volume_.stiffness[m] * (volume_now_[m] - volume_.target(m));
+      total.fx -= pressure * volume_gradient_(0, p);
+      total.fy -= pressure * volume_gradient_(1, p);
+      total.fz -= pressure * volume_gradient_(2, p);
+    }
+    force[m] += (t.x() * total.fx + t.y() * total.fy + t.z() * total.fz) * phi;
+  }
+  std::vector<Eigen::VectorXd> amplitude(static_cast<std::size_t>(muscles));
+  bool any = false;
+  for (std::size_t m = 0; m < static_cast<std::size_t>(muscles); ++m) {
+    Eigen::MatrixXd h = hessian[m];
+    if (volume_.active() && m < volume_.stiffness.size()) h += volume_.stiffness[m] * volume_along[m] * volume_along[m].transpose();
+    if (h.trace() <= 0) continue;
+    h.diagonal().array() += 1e-12 * h.trace();
+    Eigen::LDLT<Eigen::MatrixXd> factor(h);
+    if (factor.info() != Eigen::Success) continue;
+    amplitude[m] = factor.solve(force[m]);
+    any = any || amplitude[m].allFinite();
+  }
+  if (!any) return false;
+  fibre_step_.setZero(3, position.cols());
+  double longest = 0;
+  std::vector<double> volume_change(static_cast<std::size_t>(muscles), 0.0);
+  for (const std::int32_t p : free_particles_) {
+    const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)]);
+    if (amplitude[m].size() != modes || !amplitude[m].allFinite()) continue;
+    const Eigen::Vector3d t = along.col(p);
+    if (t.squaredNorm() == 0) continue;
+    hats(fibre_parameter_[p], phi);
+    fibre_step_.col(p) = phi.dot(amplitude[m]) * t;
+    longest = std::max(longest, fibre_step_.col(p).norm());
+    if (volume_.active() && volume_gradient_.cols() == position.cols())
+      volume_change[m] += volume_gradient_.col(p).dot(fibre_step_.col(p));
+  }
+  if (!(longest > 0)) return false;
+  // No particle further than the contact margin in one step: the contacts listed for the sweep still hold every
+  // sphere it can reach.
+  double scale = contact_query_ && contact_margin_m_ > 0 ? std::min(1.0, contact_margin_m_ / longest) : 1.0;
+  const auto volumeEnergyAfter = [&](double s) {
+    double energy = 0;
+    if (!volume_.active()) return energy;
+    for (std::size_t m = 0; m < volume_now_.size(); ++m) {
+      const double excess = volume_now_[m] + s * volume_change[m] - volume_.target(m);
       energy += 0.5 * volume_.stiffness[m] * excess * excess;
     }
+    return energy;
+  };
+  const double start_energy = energyWithoutVolume(position) + volumeEnergyAfter(0);
+  for (int halving = 0; halving < 4; ++halving, scale *= 0.5) {
+    fibre_trial_ = position + scale * fibre_step_;
+    if (energyWithoutVolume(fibre_trial_) + volumeEnergyAfter(scale) < start_energy) {
+      position.swap(fibre_trial_);
+      // The volume term after the step, to first order (V is linear in each particle; the sweep evaluates it again).
+      if (volume_.active())
+        for (std::size_t m = 0; m < volume_now_.size(); ++m) volume_now_[m] += scale * volume_change[m];
+      return true;
+    }
   }
-  return energy;
+  return false;
 }
 
 void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Matrix3Xd& force,
@@ -937,6 +1103,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const StoppingSetting
     stats.contacts = static_cast<int>(contacts_.size());
     stats.collision_ms += millisecondsSince(phase_start);
     evaluateVolume(state.position);  // counted with the sweep: it is part of the energy the sweep descends
+    if (settings_.fibre_modes > 0 && drag_anchor_ != nullptr && fibreModeStep(state.position)) ++stats.fibre_steps;
 
     phase_start = Clock::now();
     if (chebyshev && iteration == 0) {

@@ -72,6 +72,12 @@ struct BlockDescentSettings {
   // in [0, 1]. 0 = a plain penalty, whose answer keeps an error that falls only as 1 / volume_stiffness; above 0 a
   // steady or slow motion drives the error towards none over the frames, at a stiffness the sweeps still settle with.
   double volume_pressure_gain = 0.0;
+  // A coarse step along the fibres before every sweep: each muscle's free particles move along their fibres by a
+  // profile of this many hat functions of the position along the fibre (0 at its start, 1 at its end), chosen by a
+  // Newton step on the frame energy within that subspace (its Hessian assembled from the springs, contacts, drag and
+  // the volume term) and kept only if the energy falls. A belly's length is the slowest mode of the particle sweeps
+  // (each particle sees its neighbours held); this moves the whole belly along its fibres at once. 0 = none; at most 16.
+  int fibre_modes = 0;
 };
 
 // Returns an empty string when the settings are usable, otherwise what is wrong.
@@ -275,6 +281,17 @@ class BlockDescentSolver final : public SoftBodySolver {
   void evaluateVolume(const Eigen::Matrix3Xd& position);
   // sum_m k_m / 2 (V_m - V_m,rest)^2 for the volumes in volume_now_.
   double volumeEnergy() const;
+  // The coarse step along the fibres (settings_.fibre_modes): each free particle's position along its fibre in [0, 1]
+  // and its visiting slot; the step's scratch.
+  Eigen::VectorXd fibre_parameter_;
+  std::vector<std::int32_t> slot_of_;
+  Eigen::Matrix3Xd fibre_step_, fibre_trial_;
+  void buildFibreModes();
+  // One coarse step at `position` (contacts and the volume term as the sweep about to run sees them); true when it
+  // lowered the frame energy and was kept.
+  bool fibreModeStep(Eigen::Matrix3Xd& position);
+  // The frame energy without the volume term (springs, contacts as listed, drag).
+  double energyWithoutVolume(const Eigen::Matrix3Xd& position) const;
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
   double last_residual_ = 0.0;
 };

@@ -137,6 +137,7 @@ struct SolveStats {
   double peak_mean_displacement_m = 0;  // largest mean free-particle displacement of any iteration (all attempts)
   // Divergence (see DivergenceMonitor): each recovery restored the entry state and retried with half the step.
   int divergence_recoveries = 0;
+  int fibre_steps = 0;  // block descent: coarse steps along the fibres kept (BlockDescentSettings::fibre_modes)
   bool diverged = false;              // every attempt diverged: the state is the one the solve started from
   double time_step_s = 0;             // the solver's fixed step (upper clamp of the adaptive one) at the end, s
 };
