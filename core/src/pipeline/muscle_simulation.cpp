@@ -221,17 +221,20 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   if (!stats.warm_started) resetVolumePressure();
   if (!stats.warm_started && pressureBuilds() && main.rule == StoppingRule::iterations && main.max_iterations > 1) {
     // A cold start carries no pressure from a frame before: the muscles' pressures build within its own sweeps, one
-    // update after each (the same update a warm frame gets once, after its solve).
-    StoppingSettings one_sweep = main;
-    one_sweep.max_iterations = 1;
-    runSolver(transforms, one_sweep, stopping, stats, false);
-    for (int sweep = 1; sweep < main.max_iterations && !stats.solver.diverged && !stats.solver.cancelled &&
-                        state_.position.allFinite();
-         ++sweep) {
+    // update after every kColdPressureSweeps (the same update a warm frame gets once, after its solve). Each part is a
+    // solve of its own, with its closing contact pass and statistics: one update per sweep made the service's cold pose
+    // of the 13 thigh muscles 1.8x slower.
+    StoppingSettings part = main;
+    part.max_iterations = std::min(main.max_iterations, kColdPressureSweeps);
+    runSolver(transforms, part, stopping, stats, false);
+    for (int done = part.max_iterations; done < main.max_iterations && !stats.solver.diverged &&
+                                         !stats.solver.cancelled && state_.position.allFinite();
+         done += part.max_iterations) {
       updateVolumePressure();
+      part.max_iterations = std::min(kColdPressureSweeps, main.max_iterations - done);
       FrameStats more;
       more.has_collision = stats.has_collision;
-      runSolver(transforms, one_sweep, stopping, more, false);
+      runSolver(transforms, part, stopping, more, false);
       addSweepToFrame(more.solver, stats.solver);
       stats.collision = more.collision;
     }

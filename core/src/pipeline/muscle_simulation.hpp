@@ -93,6 +93,7 @@ class MuscleSimulation {
   // moves it (updateVolumePressure); back to the rest volume at a cold start.
   std::vector<double> volume_target_m3_;
   static constexpr double kMaxVolumeTargetShift = 0.3;  // of the rest volume
+  static constexpr int kColdPressureSweeps = 5;          // a cold start's sweeps between its pressure updates
   // After a solved frame: each muscle's pressure takes on volume_pressure_gain of its remaining volume error.
   void updateVolumePressure();
   bool pressureBuilds() const { return volume_ && settings_.block_descent.volume_pressure_gain > 0; }
