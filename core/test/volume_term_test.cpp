@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <random>
 
@@ -333,4 +334,22 @@ TEST(VolumeTerm, AColdStartForgetsThePressureBuiltBeforeIt) {
   streamed.solve(shortened(0.2), StartMode::cold, sweeps, false, false);
   fresh.solve(shortened(0.2), StartMode::cold, sweeps, false, false);
   EXPECT_EQ(streamed.state().position, fresh.state().position);
+}
+
+// A single pose may ask for unlimited sweeps within a wall-time limit. A cold start that builds the pressures in parts
+// must share that limit among its parts (each part a solve of its own would start the clock again and never stop).
+TEST(VolumeTerm, AColdStartBuildingPressureInPartsKeepsTheSolvesTimeLimit) {
+  const CylinderScene scene = cylinderScene();
+  PipelineSettings settings = cylinderSettings(kVolumeStiffness);
+  settings.simulation.block_descent.volume_pressure_gain = 1.0;
+  DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, settings);
+  StoppingSettings unlimited = StoppingSettings::afterIterations(100000000);
+  unlimited.limits.wall_time_limit_ms = 300;
+  const auto start = std::chrono::steady_clock::now();
+  const FrameResult& frame = pipeline.solve(shortened(0.3), StartMode::cold, FrameStopping::of(unlimited), false, false);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_TRUE(frame.stats.solver.time_limit_reached);
+  EXPECT_FALSE(frame.stats.solver.stopping_rule_met);
+  EXPECT_GT(frame.stats.solver.iterations, 5);  // more than one part ran
+  EXPECT_LT(seconds, 3.0);
 }

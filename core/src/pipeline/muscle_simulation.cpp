@@ -1,6 +1,7 @@
 #include "muscle_simulation.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <vector>
@@ -9,7 +10,8 @@ namespace muscle_deformation {
 
 namespace {
 
-// Adds one sweep solved past the frame's budget to the frame's statistics: its cost and the state it ended in.
+// Adds a further solve of the same frame (sweeps past its budget, or a later part of a cold start) to the frame's
+// statistics: its cost and the state it ended in.
 void addSweepToFrame(const SolveStats& sweep, SolveStats& frame) {
   frame.iterations += sweep.iterations;
   frame.mss_ms += sweep.mss_ms;
@@ -224,18 +226,32 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     // update after every kColdPressureSweeps (the same update a warm frame gets once, after its solve). Each part is a
     // solve of its own, with its closing contact pass and statistics: one update per sweep made the service's cold pose
     // of the 13 thigh muscles 1.8x slower.
+    // The parts share the solve's wall-time ceiling (a single pose may ask for unlimited sweeps within a time limit).
+    const auto cold_start = std::chrono::steady_clock::now();
     StoppingSettings part = main;
     part.max_iterations = std::min(main.max_iterations, kColdPressureSweeps);
     runSolver(transforms, part, stopping, stats, false);
     for (int done = part.max_iterations; done < main.max_iterations && !stats.solver.diverged &&
-                                         !stats.solver.cancelled && state_.position.allFinite();
+                                         !stats.solver.cancelled && !stats.solver.time_limit_reached &&
+                                         state_.position.allFinite();
          done += part.max_iterations) {
+      if (main.limits.wall_time_limit_ms > 0) {
+        const double left_ms = main.limits.wall_time_limit_ms -
+                               std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - cold_start).count();
+        if (left_ms <= 0) {
+          stats.solver.time_limit_reached = true;
+          stats.solver.stopping_rule_met = false;
+          break;
+        }
+        part.limits.wall_time_limit_ms = left_ms;
+      }
       updateVolumePressure();
       part.max_iterations = std::min(kColdPressureSweeps, main.max_iterations - done);
       FrameStats more;
       more.has_collision = stats.has_collision;
       runSolver(transforms, part, stopping, more, false);
       addSweepToFrame(more.solver, stats.solver);
+      stats.solver.stopping_rule_met = more.solver.stopping_rule_met;
       stats.collision = more.collision;
     }
   } else {
