@@ -3,8 +3,8 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
-#include <map>
 #include <cmath>
+#include <map>
 #include <stdexcept>
 
 #ifdef _OPENMP
@@ -392,11 +392,13 @@ void BlockDescentSolver::evaluateVolume(const Eigen::Matrix3Xd& position) {
   volume_.evaluate(position, volume_now_, volume_gradient_);
 }
 
-double BlockDescentSolver::volumeEnergy() const {
+double BlockDescentSolver::volumeEnergy() const { return volumeEnergyOf(volume_now_); }
+
+double BlockDescentSolver::volumeEnergyOf(const std::vector<double>& volumes) const {
   double energy = 0;
   if (!volume_.active()) return energy;
-  for (std::size_t m = 0; m < volume_now_.size(); ++m) {
-    const double excess = volume_now_[m] - volume_.target(m);
+  for (std::size_t m = 0; m < volumes.size(); ++m) {
+    const double excess = volumes[m] - volume_.target(m);
     energy += 0.5 * volume_.stiffness[m] * excess * excess;
   }
   return energy;
@@ -797,10 +799,7 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
     std::vector<double> volumes;
     Eigen::Matrix3Xd unused;
     volume_.evaluate(position, volumes, unused);
-    for (std::size_t m = 0; m < volumes.size(); ++m) {
-      const double excess = volumes[m] - volume_.target(m);
-      energy += 0.5 * volume_.stiffness[m] * excess * excess;
-    }
+    energy += volumeEnergyOf(volumes);
   }
   return energy;
 }
@@ -883,17 +882,21 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
     const std::int32_t slot = slot_of_[pk];
     const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
     Block total;
+    // A term of p's energy: its force on p, and its Hessian's p-p block seen along p's fibre.
+    const auto addOwn = [&](const Block& term) {
+      total.fx += term.fx;
+      total.fy += term.fy;
+      total.fz += term.fz;
+      hessian[m] += quadratic(term, t, t) * phi * phi.transpose();
+    };
     for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
       const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
       Block block;
       addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
                 spring.rest_length, block);
-      total.fx += block.fx;
-      total.fy += block.fy;
-      total.fz += block.fz;
       // The spring's Hessian is [H -H; -H H] over (p, other): p's own term here, the cross term once per free pair
       // (from its lower-numbered end), the other's own term from its own visit.
-      hessian[m] += quadratic(block, t, t) * phi * phi.transpose();
+      addOwn(block);
       const std::size_t ok = static_cast<std::size_t>(spring.other);
       if (system_.is_fixed[ok] || spring.other < p || system_.muscle_of[ok] != system_.muscle_of[pk]) continue;
       const Eigen::Vector3d t_other = along.col(spring.other);
@@ -908,18 +911,12 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
       Block block;
       addContact(x, atPositions(entry, position),
                  entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
-      total.fx += block.fx;
-      total.fy += block.fy;
-      total.fz += block.fz;
-      hessian[m] += quadratic(block, t, t) * phi * phi.transpose();  // the partner held (a stiffer, safe model)
+      addOwn(block);  // the partner held (a stiffer, safe model)
     }
     Block drag;
     addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), drag);
     drag.addIsotropic(regularisation_[p]);
-    total.fx += drag.fx;
-    total.fy += drag.fy;
-    total.fz += drag.fz;
-    hessian[m] += quadratic(drag, t, t) * phi * phi.transpose();
+    addOwn(drag);
     if (volume_.active() && volume_gradient_.cols() == position.cols() && volume_.stiffness[m] > 0) {
       const double g_along = volume_gradient_.col(p).dot(t);
       volume_along[m] += g_along * phi;
@@ -962,13 +959,9 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
   // sphere it can reach.
   double scale = contact_query_ && contact_margin_m_ > 0 ? std::min(1.0, contact_margin_m_ / longest) : 1.0;
   const auto volumeEnergyAfter = [&](double s) {
-    double energy = 0;
-    if (!volume_.active()) return energy;
-    for (std::size_t m = 0; m < volume_now_.size(); ++m) {
-      const double excess = volume_now_[m] + s * volume_change[m] - volume_.target(m);
-      energy += 0.5 * volume_.stiffness[m] * excess * excess;
-    }
-    return energy;
+    std::vector<double> volumes = volume_now_;
+    for (std::size_t m = 0; m < volumes.size(); ++m) volumes[m] += s * volume_change[m];
+    return volumeEnergyOf(volumes);
   };
   const double start_energy = energyWithoutVolume(position) + volumeEnergyAfter(0);
   for (int halving = 0; halving < 4; ++halving, scale *= 0.5) {

@@ -279,8 +279,10 @@ class BlockDescentSolver final : public SoftBodySolver {
   void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end);
   // The volume term's value and gradient at `position` into volume_now_ / volume_gradient_ (nothing when off).
   void evaluateVolume(const Eigen::Matrix3Xd& position);
-  // sum_m k_m / 2 (V_m - V_m,rest)^2 for the volumes in volume_now_.
+  // sum_m k_m / 2 (V_m - target_m)^2 for the volumes in volume_now_.
   double volumeEnergy() const;
+  // sum_m k_m / 2 (V_m - target_m)^2 for any per-muscle volumes.
+  double volumeEnergyOf(const std::vector<double>& volumes) const;
   // The coarse step along the fibres (settings_.fibre_modes): each free particle's position along its fibre in [0, 1]
   // and its visiting slot; the step's scratch.
   Eigen::VectorXd fibre_parameter_;
