@@ -5,6 +5,11 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <vector>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 namespace muscle_deformation {
 namespace {
@@ -22,6 +27,11 @@ class StrainHistogram {
     }
     ++counts_[bin];
     ++total_;
+  }
+  // Counts are whole numbers: merging per-thread histograms gives the same histogram in any order.
+  void merge(const StrainHistogram& other) {
+    for (std::size_t bin = 0; bin < kBins; ++bin) counts_[bin] += other.counts_[bin];
+    total_ += other.total_;
   }
   // Upper edge of the bin holding the given quantile (clamped to the largest value seen by the caller).
   double quantileUpperBound(double quantile) const {
@@ -62,31 +72,58 @@ std::string validate(const StoppingSettings& stopping) {
   return {};
 }
 
-SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position) {
+SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position, int threads) {
   SpringMetrics metrics;
   if (springs.size() == 0) return metrics;
-  double deviation = 0, rest_sum = 0, strain_sum = 0;
-  StrainHistogram histogram;
-  for (std::size_t s = 0; s < springs.size(); ++s) {
-    const auto e = static_cast<Eigen::Index>(s);
-    const double rest = springs.rest_length[e];
-    const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
-    const double change = std::abs(length - rest);
-    const double strain = change / rest;
-    deviation += change;
-    rest_sum += rest;
-    strain_sum += strain;
-    metrics.max_strain = std::max(metrics.max_strain, strain);
-    histogram.add(strain);
+  // Every frame measures all its springs (a third of a million in the bundled scene, a fifth of a sweep's time when
+  // serial): the threads share fixed chunks, whose sums are added in chunk order, so the figures do not depend on the
+  // thread count.
+  constexpr std::size_t kChunk = 4096;
+  const std::size_t chunks = (springs.size() + kChunk - 1) / kChunk;
+  std::vector<double> deviation(chunks, 0.0), rest_sum(chunks, 0.0), strain_sum(chunks, 0.0), max_strain(chunks, 0.0);
+  const int thread_count = std::max(1, std::min<int>(threads, static_cast<int>(chunks)));
+  std::vector<StrainHistogram> histograms(static_cast<std::size_t>(thread_count));
+#pragma omp parallel num_threads(thread_count)
+  {
+#ifdef _OPENMP
+    StrainHistogram& histogram = histograms[static_cast<std::size_t>(omp_get_thread_num())];
+#else
+    StrainHistogram& histogram = histograms.front();
+#endif
+#pragma omp for schedule(static)
+    for (std::size_t chunk = 0; chunk < chunks; ++chunk) {
+      const std::size_t end = std::min(springs.size(), (chunk + 1) * kChunk);
+      for (std::size_t s = chunk * kChunk; s < end; ++s) {
+        const auto e = static_cast<Eigen::Index>(s);
+        const double rest = springs.rest_length[e];
+        const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
+        const double change = std::abs(length - rest);
+        const double strain = change / rest;
+        deviation[chunk] += change;
+        rest_sum[chunk] += rest;
+        strain_sum[chunk] += strain;
+        max_strain[chunk] = std::max(max_strain[chunk], strain);
+        histogram.add(strain);
+      }
+    }
   }
-  metrics.deviation_ratio = deviation / rest_sum;
-  metrics.mean_strain = strain_sum / static_cast<double>(springs.size());
+  double deviation_total = 0, rest_total = 0, strain_total = 0;
+  for (std::size_t chunk = 0; chunk < chunks; ++chunk) {
+    deviation_total += deviation[chunk];
+    rest_total += rest_sum[chunk];
+    strain_total += strain_sum[chunk];
+    metrics.max_strain = std::max(metrics.max_strain, max_strain[chunk]);
+  }
+  StrainHistogram histogram;
+  for (const StrainHistogram& part : histograms) histogram.merge(part);
+  metrics.deviation_ratio = deviation_total / rest_total;
+  metrics.mean_strain = strain_total / static_cast<double>(springs.size());
   metrics.strain_p99 = std::min(histogram.quantileUpperBound(0.99), metrics.max_strain);
   return metrics;
 }
 
-void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats) {
-  const SpringMetrics metrics = measureSprings(springs, position);
+void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats, int threads) {
+  const SpringMetrics metrics = measureSprings(springs, position, threads);
   stats.spring_deviation_ratio = metrics.deviation_ratio;
   stats.mean_strain = metrics.mean_strain;
   stats.max_strain = metrics.max_strain;

@@ -189,9 +189,11 @@ inline bool solveLimitReached(const SolveLimits& limits, double elapsed_ms, Solv
 struct SpringMetrics {
   double deviation_ratio = 0, mean_strain = 0, max_strain = 0, strain_p99 = 0;
 };
-SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position);
-// Fills the spring fields of `stats` (deviation ratio, mean and max strain) at `position`.
-void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats);
+// On `threads` threads; the figures are the same for any thread count.
+SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position, int threads = 1);
+// Fills the spring fields of `stats` (deviation ratio, mean and max strain, strain percentile) at `position`.
+void recordSpringMetrics(const SpringSet& springs, const Eigen::Matrix3Xd& position, SolveStats& stats,
+                         int threads = 1);
 
 // Called after every MSS update with the new state; returns the number of contacts resolved. The collision stage
 // plugs in here so the solver stays free of collision code.
