@@ -553,3 +553,71 @@ TEST(BlockDescent, FibreModesOutsideTheirRangeAreRefused) {
   settings.fibre_modes = 4;
   EXPECT_TRUE(validate(settings).empty());
 }
+
+// The hung particle pressed onto a sphere that is another muscle's (fixed) particle instead of a bone's: the pair's
+// stiffness follows muscle_contact_stiffness_scale, a bone's keeps contact_stiffness_scale. Here either stiffness is
+// scale x 10 N/m (material constant 1 N over the radius 0.1 m, and scale x the particle's summed spring stiffness of
+// 10 N/m: the same), and at equilibrium the contact's push, stiffness x depth, balances the springs' pull.
+TEST(BlockDescent, AMuscleMuscleContactTakesItsOwnStiffnessScaleAndABonesContactKeepsTheOther) {
+  Eigen::Matrix3Xd positions(3, 4);
+  positions << -1, 0, 1, 0,  //
+      0, 0.8, 0, -0.2,        //
+      0, 0, 0, 0;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.springs.rest_length.setConstant(0.2);
+  system.springs.stiffness.setConstant(5.0);
+  system.is_fixed[0] = system.is_fixed[2] = system.is_fixed[3] = 1;
+  system.radius.setConstant(0.1);
+  const Eigen::Vector3d centre(0, -0.2, 0);
+  const double distance = 0.6;  // the two particles' radii plus 0.4 m: the partner stands for a large sphere
+  const StoppingSettings stopping = converging(10000, 1e-10);
+  struct Balance {
+    double depth, pull;
+  };
+  const auto solveWith = [&](const BlockDescentSettings& settings, bool pair) {
+    BlockDescentSolver solver(system, settings);
+    solver.setContactQuery(
+        [&](const ParticleState&, double, ContactSet& contacts) {
+          contacts.clear();
+          if (pair) contacts.pairs.push_back({1, 3, distance});
+          else contacts.obstacles.push_back({1, centre, distance});
+        },
+        false);
+    ParticleState state = stateAt(system.rest_position);
+    EXPECT_TRUE(solver.solve(state, stopping).converged);
+    const Eigen::Vector3d x = state.position.col(1);
+    Eigen::Vector3d pull = Eigen::Vector3d::Zero();
+    for (const int end : {0, 2}) {
+      const Eigen::Vector3d d = state.position.col(end) - x;
+      pull += 5.0 * (d.norm() - 0.2) * d.normalized();
+    }
+    return Balance{distance - (x - centre).norm(), pull.norm()};
+  };
+  BlockDescentSettings soft_pairs;
+  soft_pairs.muscle_contact_stiffness_scale = 10.0;
+  const double stiff = 10.0 * soft_pairs.contact_stiffness_scale, soft = 10.0 * 10.0;
+  const Balance pair_default = solveWith(BlockDescentSettings{}, true), pair_soft = solveWith(soft_pairs, true);
+  ASSERT_GT(pair_default.depth, 0.0);
+  EXPECT_NEAR(stiff * pair_default.depth, pair_default.pull, 1e-6 * pair_default.pull);
+  EXPECT_NEAR(soft * pair_soft.depth, pair_soft.pull, 1e-6 * pair_soft.pull);
+  EXPECT_GT(pair_soft.depth, 9.0 * pair_default.depth);  // softer by 10x, the springs' pull nearly the same
+  const Balance obstacle_default = solveWith(BlockDescentSettings{}, false), obstacle_soft = solveWith(soft_pairs, false);
+  EXPECT_EQ(obstacle_soft.depth, obstacle_default.depth);
+  EXPECT_NEAR(stiff * obstacle_soft.depth, obstacle_soft.pull, 1e-6 * obstacle_soft.pull);
+  // 0 means the contact scale: the same answer as setting it equal.
+  BlockDescentSettings equal;
+  equal.muscle_contact_stiffness_scale = equal.contact_stiffness_scale;
+  EXPECT_EQ(solveWith(equal, true).depth, pair_default.depth);
+}
+
+TEST(BlockDescent, ANegativeOrNonFiniteMuscleContactScaleIsRefused) {
+  BlockDescentSettings settings;
+  for (const double scale : {-1.0, std::nan(""), HUGE_VAL}) {
+    settings.muscle_contact_stiffness_scale = scale;
+    EXPECT_NE(validate(settings).find("muscle_contact_stiffness_scale"), std::string::npos) << scale;
+  }
+  settings.muscle_contact_stiffness_scale = 0.0;
+  EXPECT_TRUE(validate(settings).empty());
+  settings.muscle_contact_stiffness_scale = 30.0;
+  EXPECT_TRUE(validate(settings).empty());
+}

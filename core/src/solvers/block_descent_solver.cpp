@@ -168,6 +168,8 @@ inline double contactEnergy(const Eigen::Vector3d& x, const ContactEntry& entry,
 std::string validate(const BlockDescentSettings& settings) {
   if (!(settings.contact_stiffness_scale > 0) || !std::isfinite(settings.contact_stiffness_scale))
     return "contact_stiffness_scale must be a positive number";
+  if (!(settings.muscle_contact_stiffness_scale >= 0) || !std::isfinite(settings.muscle_contact_stiffness_scale))
+    return "muscle_contact_stiffness_scale must be 0 (the contact scale) or a positive number";
   if (!(settings.chebyshev_rho >= 0 && settings.chebyshev_rho < 1)) return "chebyshev_rho must lie in [0, 1)";
   if (settings.chebyshev_delay < 0) return "chebyshev_delay must be >= 0";
   if (!(settings.contact_margin_scale >= 0) || !std::isfinite(settings.contact_margin_scale))
@@ -265,6 +267,9 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   regularisation_.setZero(n);
   spring_stiffness_sum_.setZero(n);
   particle_contact_stiffness_.setZero(n);
+  particle_pair_stiffness_.setZero(n);
+  const double pair_scale = settings_.pairStiffnessScale();
+  const double pair_floor = pair_scale * material_constant_n_ / typical_radius;
   for (Eigen::Index i = 0; i < n; ++i) {
     double sum = 0;
     for (std::int32_t k = neighbour_begin_[static_cast<std::size_t>(i)]; k < neighbour_begin_[static_cast<std::size_t>(i) + 1]; ++k)
@@ -272,6 +277,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     regularisation_[i] = 1e-9 * sum + 1e-12;
     spring_stiffness_sum_[i] = sum;
     particle_contact_stiffness_[i] = std::max(contact_stiffness_, settings_.contact_stiffness_scale * sum);
+    particle_pair_stiffness_[i] = std::max(pair_floor, pair_scale * sum);
   }
   for (Eigen::Index i = 0; i < n; ++i)
     if (!system_.is_fixed[static_cast<std::size_t>(i)]) free_particles_.push_back(static_cast<std::int32_t>(i));
@@ -562,7 +568,6 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32)
     for (std::int32_t k = begin; k < end; ++k) {
       const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
-      const double kc = particle_contact_stiffness_[p];
       const std::int32_t contact_begin = contact_begin_[static_cast<std::size_t>(p)];
       const std::int32_t contact_end = contact_begin_[static_cast<std::size_t>(p) + 1];
       if (touching_only) {
@@ -609,7 +614,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          energy += contactEnergy(at, entry, entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc);
+          energy += contactEnergy(at, entry, contactStiffnessOf(p, entry));
         }
         if (volume_inline) energy += 0.5 * volume_k * volume_excess_at(at) * volume_excess_at(at);
         return energy + dragEnergy(p, at, carried);
@@ -627,9 +632,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-          // A pair's energy is one: both ends use the stiffer end's stiffness.
-          const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
-          addContact(x, entry, pair_kc, entry.same_colour ? 2.0 : 1.0, block);
+          addContact(x, entry, contactStiffnessOf(p, entry), entry.same_colour ? 2.0 : 1.0, block);
         }
         addDrag(drag, drag_along, fibre_direction, x, carried, block);
         if (newton == 0) {
@@ -720,7 +723,6 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
   double sum = 0;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::int32_t p = coloured_particles_[slot];
-    const double kc = particle_contact_stiffness_[p];
     Block block;
     const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
     for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
@@ -732,8 +734,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
       ContactEntry current = entry;
       if (entry.partner >= 0) current.centre = position.col(entry.partner);
-      const double pair_kc = entry.partner >= 0 ? std::max(kc, particle_contact_stiffness_[entry.partner]) : kc;
-      addContact(Eigen::Vector3d(position.col(p)), current, pair_kc, 1.0, block);
+      addContact(Eigen::Vector3d(position.col(p)), current, contactStiffnessOf(p, entry), 1.0, block);
     }
     if (with_drag)
       addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), position.col(p),
@@ -786,10 +787,6 @@ void BlockDescentSolver::beginFrame(const ParticleState& state, double margin_m)
 }
 
 namespace {
-// The pair stiffness both ends of a muscle-muscle contact use, or the particle's own against an obstacle.
-inline double entryStiffness(const ContactEntry& entry, double own, const Eigen::VectorXd& per_particle) {
-  return entry.partner >= 0 ? std::max(own, per_particle[entry.partner]) : own;
-}
 inline ContactEntry atPositions(const ContactEntry& entry, const Eigen::Matrix3Xd& position) {
   ContactEntry current = entry;
   if (entry.partner >= 0) current.centre = position.col(entry.partner);
@@ -823,7 +820,7 @@ double BlockDescentSolver::energyWithoutVolume(const Eigen::Matrix3Xd& position)
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
       const double share = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)] ? 0.5 : 1.0;
       energy += share * contactEnergy(x, atPositions(entry, position),
-                                      entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_));
+                                      contactStiffnessOf(p, entry));
     }
     energy += dragEnergy(p, x, drag_anchor_->col(p));
   }
@@ -914,7 +911,7 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
       Block block;
       addContact(x, atPositions(entry, position),
-                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+                 contactStiffnessOf(p, entry), 1.0, block);
       addOwn(block);  // the partner held (a stiffer, safe model)
     }
     Block drag;
@@ -1000,7 +997,7 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
     for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
       addContact(x, atPositions(entry, position),
-                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+                 contactStiffnessOf(p, entry), 1.0, block);
     }
     addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), block);
     block.addIsotropic(regularisation_[p]);
@@ -1063,7 +1060,7 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
       Block block;
       addContact(x, atPositions(entry, position),
-                 entryStiffness(entry, particle_contact_stiffness_[p], particle_contact_stiffness_), 1.0, block);
+                 contactStiffnessOf(p, entry), 1.0, block);
       const bool partner_free = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)];
       apply(block, partner_free ? Eigen::Vector3d(vp - direction.col(entry.partner)) : vp);
     }

@@ -27,6 +27,7 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <string>
@@ -40,6 +41,15 @@ struct BlockDescentSettings {
   // resists stretch, and for each particle at least this many times its own summed spring stiffness, so that none of
   // its springs holds it inside a sphere by more than about 1 / scale of the overlap.
   double contact_stiffness_scale = 100.0;
+  // The same for contacts between two muscles' particles alone (0 = contact_stiffness_scale). All of block descent's
+  // residual that is left after many sweeps sits on particles pressed together by such pairs (docs/realtime.md, "Where
+  // block descent levels off"): contacts that much stiffer than the springs pass corrections back and forth from
+  // colour to colour. A softer pair scale lets those clusters settle while bones keep the stiff contacts that hold
+  // particles out of them.
+  double muscle_contact_stiffness_scale = 0.0;
+  double pairStiffnessScale() const {
+    return muscle_contact_stiffness_scale > 0 ? muscle_contact_stiffness_scale : contact_stiffness_scale;
+  }
   // Contacts are looked for once per sweep among pairs closer than this many median collision radii to touching, so
   // that a particle that reaches a sphere during the sweep meets it in its own step.
   // 1: measured on the bundled 26 muscles, one warm sweep then ends 0.06 mm deep in bone at most (0.5: up to 0.9 mm,
@@ -253,6 +263,13 @@ class BlockDescentSolver final : public SoftBodySolver {
   }
   // The drag's energy 1/2 (x - c)^T D (x - c) of particle p at x with anchor c.
   double dragEnergy(std::int32_t p, const Eigen::Vector3d& x, const Eigen::Vector3d& carried) const;
+  // A contact's stiffness on particle p: against an obstacle or a half-space p's own, between two muscles' particles the
+  // larger of both ends' pair stiffness (a pair's energy is one).
+  double contactStiffnessOf(std::int32_t p, const ContactEntry& entry) const {
+    return entry.partner >= 0 ? std::max(particle_pair_stiffness_[p], particle_pair_stiffness_[entry.partner])
+                              : particle_contact_stiffness_[p];
+  }
+  Eigen::VectorXd particle_pair_stiffness_;  // per particle, N/m: the same with muscle_contact_stiffness_scale
   Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m             // per particle, N/m: keeps every 3 x 3 block invertible
 
   ContactQuery contact_query_;
