@@ -1,5 +1,7 @@
 #include "muscle_deformation/node/muscle_deformation_node.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_deformation/node/conversions.hpp"
 #include "muscle_deformation/node/scene_startup.hpp"
 
@@ -50,8 +52,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   settings_.core.stream.stopping.sweeps.limits = limits;
   const auto start = std::chrono::steady_clock::now();
   loadScene();
-  const double startup_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  const double startup_ms = millisecondsSince(start);
   const DeformationPipeline& pipeline = stream_->pipeline();
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
                                                << "'; built " << pipeline.describe() << "; startup " << startup_ms

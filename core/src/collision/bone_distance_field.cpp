@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/collision/bone_distance_field.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_deformation/core/base/anatomy.hpp"
 
 #include <openvdb/openvdb.h>
@@ -70,7 +72,7 @@ BoneDistanceField::BoneDistanceField(const TriangleMesh& surface, const BoneFiel
   reach_ = boundsOf(surface.vertices);
   reach_.min.array() -= exteriorBand();
   reach_.max.array() += exteriorBand();
-  build_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  build_ms_ = millisecondsSince(start);
 }
 
 BoneDistanceField::~BoneDistanceField() = default;

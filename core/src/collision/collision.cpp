@@ -1,6 +1,8 @@
 // The collision stage: muscle-muscle and muscle-bone sphere collision with the seeds' response (thesis 4.3).
 #include "muscle_deformation/core/collision/collision.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,9 +13,6 @@ namespace muscle_deformation {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double millisecondsSince(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 bool boxesOverlap(const AlignedBox& a, const AlignedBox& b, double margin = 0.0) {
   if (a.empty() || b.empty()) return false;

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/model/model_builder.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_deformation/core/model/collision_radii.hpp"
 #include "muscle_deformation/core/model/fibre_sampling.hpp"
 #include "muscle_deformation/core/base/inside_test.hpp"
@@ -713,7 +715,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
   for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;
-  out.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  out.build_ms = millisecondsSince(start);
   return system;
 }
 

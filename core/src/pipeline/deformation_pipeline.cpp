@@ -1,18 +1,13 @@
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_simulation.hpp"
 
 #include <chrono>
 #include <sstream>
 
 namespace muscle_deformation {
-namespace {
-
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
-
-}  // namespace
 
 DeformationPipeline::DeformationPipeline(std::vector<MuscleDescription> descriptions, std::vector<Muscle> muscles,
                                          std::vector<Bone> bones, const PipelineSettings& settings,

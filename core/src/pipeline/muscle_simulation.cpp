@@ -1,5 +1,7 @@
 #include "muscle_simulation.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -236,8 +238,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
                                          state_.position.allFinite();
          done += part.max_iterations) {
       if (main.limits.wall_time_limit_ms > 0) {
-        const double left_ms = main.limits.wall_time_limit_ms -
-                               std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - cold_start).count();
+        const double left_ms = main.limits.wall_time_limit_ms - millisecondsSince(cold_start);
         if (left_ms <= 0) {
           stats.solver.time_limit_reached = true;
           stats.solver.stopping_rule_met = false;

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -15,9 +17,6 @@ namespace muscle_deformation {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double millisecondsSince(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 int everyCore() {
 #ifdef _OPENMP

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include <Eigen/Geometry>
@@ -16,9 +18,6 @@ namespace muscle_deformation {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double millisecondsSince(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 // Edge vectors of a tetrahedron as columns: [x1 - x0, x2 - x0, x3 - x0].
 Eigen::Matrix3d edgeMatrix(const Eigen::Matrix3Xd& position, const Eigen::Vector4i& tet) {

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/solvers/newton_krylov_solver.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -10,9 +12,6 @@ namespace muscle_deformation {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double millisecondsSince(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 // Sum over the free particles of a . b.
 double dot(const std::vector<std::int32_t>& free, const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
   double sum = 0;

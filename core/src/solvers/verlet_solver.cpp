@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -13,9 +15,6 @@ namespace muscle_deformation {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double millisecondsSince(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 }  // namespace
 
 

@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -242,7 +244,7 @@ SceneMetrics DeformationMetrics::measure(const std::vector<Vertices>& surfaces, 
   }
   for (std::size_t m = 0; m < scene.muscles.size(); ++m)
     if (scene.muscles[m].fibres > 0) scene.muscles[m].fibre_length_change_mean_pct = sum[m] / scene.muscles[m].fibres;
-  scene.compute_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  scene.compute_ms = millisecondsSince(start);
   return scene;
 }
 

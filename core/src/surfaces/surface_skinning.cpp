@@ -1,6 +1,8 @@
 // Surface skinning: precompute per muscle at rest, then a cheap per-frame update from the particle positions.
 #include "muscle_deformation/core/surfaces/surface_skinning.hpp"
 
+#include "muscle_deformation/core/base/stopwatch.hpp"
+
 #include "muscle_deformation/core/model/spring_layout.hpp"
 
 #include "muscle_deformation/core/base/point_index.hpp"
@@ -36,9 +38,6 @@ namespace {
 
 using Triplets = std::vector<Eigen::Triplet<double, std::int32_t>>;
 
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
 
 }  // namespace
 

@@ -270,7 +270,7 @@ class BlockDescentSolver final : public SoftBodySolver {
                               : particle_contact_stiffness_[p];
   }
   Eigen::VectorXd particle_pair_stiffness_;  // per particle, N/m: the same with muscle_contact_stiffness_scale
-  Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m             // per particle, N/m: keeps every 3 x 3 block invertible
+  Eigen::VectorXd particle_contact_stiffness_;  // per particle, N/m
 
   ContactQuery contact_query_;
   ContactSet contacts_;
