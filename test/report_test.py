@@ -151,6 +151,21 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("| kick | gait | yes | 1 |", text)
         self.assertIn("still refining", text)
         self.assertNotIn("| case | what | recoveries", text)
+        self.assertIn("| not measured |", text)
+
+    def test_a_motion_whose_converged_strain_exceeds_the_yardstick_is_named(self):
+        gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,
+                "strain_p99_max": 0.4, "converged_strain_p99_median": 0.15, "converged_strain_p99_max": 0.3,
+                "converged_frames": 70.0, "reference_frames": 72.0, "max_strain": 3.0,
+                "max_particle_inside_bone_mm": 0.1, "deepest_particle": "", "particle_volume_error_max_pct": 2.0,
+                "settled_converged": 1.0}
+        kick = dict(gait, case="kick", strain_p99_median=0.5, converged_strain_p99_median=0.45,
+                    converged_strain_p99_max=0.6, converged_frames=40.0, reference_frames=55.0)
+        deep = dict(gait, case="deep", strain_p99_median=0.5, converged_strain_p99_median=0.39)
+        text = "\n".join(accuracy_report.stability_section([gait, kick, deep]))
+        self.assertIn("| 0.500 / 0.400 | 0.450 / 0.600 (40 of 55) |", text)
+        self.assertIn("beyond what more sweeps can give: kick (0.450 converged against 0.500 streamed).", text)
+        self.assertNotIn("deep (0.390", text)
 
 
 

@@ -326,6 +326,12 @@ CoreSettings nodeDefaultSettings() {
   // volume at the stiffness the sweeps settle with.
   settings.pipeline.simulation.block_descent.volume_stiffness = 10.0;
   settings.pipeline.simulation.block_descent.volume_pressure_gain = 1.0;
+  // Muscle-muscle contacts 30 times the material constant over the median radius, bone contacts 100 (thigh13, stability
+  // and fidelity benches, 2026-11-27): block descent's leftover residual sat wholly on particles pressed together by
+  // pairs; softer pairs let a pose held after a 1.5 rad jump converge in 20 held poses instead of 73, and every other
+  // held motion converge (none did), with the depth in bone, volumes and lengths as before; the gait's frame time 1.05x
+  // in paired runs (0.88-1.10). Softer bone contacts too (contact_stiffness_scale 30) put a particle 1.53 mm into a bone.
+  settings.pipeline.simulation.block_descent.muscle_contact_stiffness_scale = 30.0;
   return settings;
 }
 
