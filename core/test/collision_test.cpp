@@ -811,6 +811,85 @@ TEST(CollisionWorldWithBoneFields, ContactsAreHalfSpacesFoundWithinTheMarginAndF
   EXPECT_NEAR(contact.normal.dot(contact.point), 0.027, 3e-4);
 }
 
+namespace {
+
+void expectSameFigures(const md::CollisionStats& listed, const md::CollisionStats& searched, const std::string& what) {
+  EXPECT_EQ(listed.muscle_muscle_contacts, searched.muscle_muscle_contacts) << what;
+  EXPECT_EQ(listed.muscle_bone_contacts, searched.muscle_bone_contacts) << what;
+  EXPECT_EQ(listed.contacts, searched.contacts) << what;
+  EXPECT_EQ(listed.max_penetration_muscle_muscle_m, searched.max_penetration_muscle_muscle_m) << what;
+  EXPECT_EQ(listed.max_penetration_muscle_bone_m, searched.max_penetration_muscle_bone_m) << what;
+  // Sums in a different order: equal up to rounding.
+  EXPECT_NEAR(listed.mean_penetration_muscle_muscle_m, searched.mean_penetration_muscle_muscle_m, 1e-15) << what;
+  EXPECT_NEAR(listed.mean_penetration_muscle_bone_m, searched.mean_penetration_muscle_bone_m, 1e-15) << what;
+}
+
+}  // namespace
+
+TEST(CollisionWorldWithBoneFields, MeasuringTheListedContactsFindsAContactMadeByAParticleThatMovedBeyondTheMargin) {
+  // Two muscles' particles (2 mm radius) 10 mm apart and a third 5 mm off the ball bone's surface beyond its radius:
+  // none is listed with a 1 mm margin. Two then move 7 mm (beyond the margin): into a 1 mm overlap with the other
+  // muscle's particle, and 2 mm into the bone's clearance.
+  md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.060, 0, 0), 0.002},
+                                            {1, Eigen::Vector3d(0.070, 0, 0), 0.002},
+                                            {1, Eigen::Vector3d(0, 0.032, 0), 0.002}}, 2);
+  md::CollisionWorld world(system, {ballField()}, {}, {"ball"});
+  auto state = md::restState(system);
+  md::ContactSet contacts;
+  world.findContacts(state, contacts, 0.001);
+  EXPECT_TRUE(contacts.pairs.empty());
+  EXPECT_TRUE(contacts.half_spaces.empty());
+  state.position.col(0) += Eigen::Vector3d(0.007, 0, 0);
+  state.position.col(2) -= Eigen::Vector3d(0, 0.007, 0);
+  const md::CollisionStats listed = world.measureListed(state);
+  EXPECT_EQ(listed.muscle_muscle_contacts, 1);
+  EXPECT_NEAR(listed.max_penetration_muscle_muscle_m, 0.001, 1e-12);
+  EXPECT_EQ(listed.muscle_bone_contacts, 1);
+  EXPECT_NEAR(listed.max_penetration_muscle_bone_m, 0.002, 3e-4);  // the field's interpolation, as measure() reads it
+  expectSameFigures(listed, world.measure(state), "two particles moved beyond the margin");
+}
+
+TEST(CollisionWorldWithBoneFields, MeasuringTheListedContactsGivesMeasuresFiguresWhateverTheParticlesDidSince) {
+  // Five muscles of random particles around a ball bone; contacts listed with a 1 mm margin, then the particles moved
+  // (a) all within the margin, (b) a few of them beyond it, (c) more than can be checked alone; and (d) the bone moved.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> coord(-0.045, 0.045), radius(0.001, 0.004), unit(-1.0, 1.0);
+  std::vector<TestParticle> particles;
+  for (int i = 0; i < 2000; ++i)
+    particles.push_back({i % 5, Eigen::Vector3d(coord(rng), coord(rng), coord(rng)), radius(rng), i % 41 == 0});
+  const md::MassSpringSystem system = makeSystem(particles, 5);
+  md::CollisionWorld world(system, {ballField()}, {}, {"ball"});
+  const double margin = 0.001;
+  const auto start = md::restState(system);
+  const auto moved = [&](double step, int every) {
+    auto state = start;
+    for (Eigen::Index p = 0; p < state.position.cols(); ++p) {
+      if (system.is_fixed[static_cast<std::size_t>(p)]) continue;
+      const Eigen::Vector3d direction = Eigen::Vector3d(unit(rng), unit(rng), unit(rng)).normalized();
+      state.position.col(p) += (p % every == 0 ? 4.0 * margin : step) * direction;
+    }
+    return state;
+  };
+  md::ContactSet contacts;
+  const struct {
+    const char* what;
+    double step;
+    int every;
+  } cases[] = {{"within the margin", 0.9 * margin, 1 << 30}, {"a few beyond it", 0.5 * margin, 97},
+               {"many beyond it", 0.5 * margin, 3}};
+  for (const auto& c : cases) {
+    world.findContacts(start, contacts, margin);
+    const auto state = moved(c.step, c.every);
+    const md::CollisionStats listed = world.measureListed(state);
+    EXPECT_GT(listed.muscle_muscle_contacts, 0) << c.what;
+    EXPECT_GT(listed.muscle_bone_contacts, 0) << c.what;
+    expectSameFigures(listed, world.measure(state), c.what);
+  }
+  world.findContacts(start, contacts, margin);
+  world.setBoneTransforms({Eigen::Isometry3d(Eigen::Translation3d(0.004, 0, 0))});
+  expectSameFigures(world.measureListed(start), world.measure(start), "after the bone moved");
+}
+
 TEST(CollisionWorldWithBoneFields, RejectsFieldsAndNamesOfDifferentCounts) {
   const md::MassSpringSystem system = makeSystem({{0, Eigen::Vector3d(0.035, 0, 0), 0.002}}, 1);
   EXPECT_THROW(md::CollisionWorld(system, std::vector<std::shared_ptr<const md::BoneDistanceField>>{ballField()},

@@ -27,6 +27,10 @@ Eigen::Vector3d separationDirection(const Eigen::Vector3d& a, const Eigen::Vecto
   return Eigen::Vector3d::UnitX();
 }
 
+// measureListed checks up to this many particles that moved further than the search's margin against every sphere
+// alone; with more, searching again costs less.
+constexpr int kMostParticlesCheckedAlone = 64;
+
 struct PenetrationSum {
   int count = 0;
   double max = 0, sum = 0;
@@ -38,6 +42,21 @@ struct PenetrationSum {
   double mean() const { return count > 0 ? sum / count : 0.0; }
 };
 
+// The accumulated timing of `timed` with the contacts and penetrations measured.
+CollisionStats statsOf(const CollisionStats& timed, const PenetrationSum& muscle_sum, const PenetrationSum& bone_sum,
+                       int bones_skipped) {
+  CollisionStats result = timed;
+  result.muscle_muscle_contacts = muscle_sum.count;
+  result.muscle_bone_contacts = bone_sum.count;
+  result.contacts = muscle_sum.count + bone_sum.count;
+  result.max_penetration_muscle_muscle_m = muscle_sum.max;
+  result.mean_penetration_muscle_muscle_m = muscle_sum.mean();
+  result.max_penetration_muscle_bone_m = bone_sum.max;
+  result.mean_penetration_muscle_bone_m = bone_sum.mean();
+  result.bones_skipped = bones_skipped;
+  return result;
+}
+
 }  // namespace
 
 struct CollisionWorld::Impl {
@@ -48,6 +67,7 @@ struct CollisionWorld::Impl {
   // Muscle objects (broad-phase ids 0 .. muscle_count-1): the particle behind each sphere and current spheres.
   std::vector<std::vector<std::int32_t>> sphere_particle;
   std::vector<std::vector<std::uint8_t>> sphere_fixed;
+  std::vector<std::int32_t> sphere_index_of_particle;  // its index in its muscle's sphere set; -1: no sphere
   std::vector<SphereSet> muscle_spheres;  // radii grown by `inflation` while contacts are found with a margin
   std::vector<Eigen::VectorXd> muscle_radius;  // the spheres' own radii
   double inflation = 0;
@@ -65,6 +85,7 @@ struct CollisionWorld::Impl {
   // bone (its radius, or its rest distance where smaller), and each field's reach in the current pose.
   std::vector<std::shared_ptr<const BoneDistanceField>> bone_fields;
   std::vector<std::int32_t> field_particles;
+  std::vector<std::int32_t> field_index_of_particle;  // its index in field_particles; -1: none (a fixed particle)
   std::vector<Eigen::VectorXd> field_clearance;  // [bone][k] for particle field_particles[k]
   std::vector<AlignedBox> field_reach;           // [bone], world frame
   int closer_than_radius_at_rest = 0;
@@ -78,6 +99,17 @@ struct CollisionWorld::Impl {
   std::vector<int> muscle_ids;                  // broad-phase ids of the muscles: 0 .. muscle_count-1
   std::vector<std::uint8_t> muscle_test_pair;   // muscle_count^2: bounds overlap this iteration
   std::vector<ObjectSpherePair> muscle_pairs;
+
+  // What the last findContacts listed, with its margin and the positions it searched at, kept so that measureListed()
+  // can measure the penetrations over them alone while no particle has since moved as far as the margin; cleared when
+  // the bones move.
+  std::vector<ContactSet::Pair> listed_pairs;
+  std::vector<ContactSet::Obstacle> listed_obstacles;
+  std::vector<std::pair<int, Eigen::Index>> listed_field;  // (bone, index into field_particles)
+  Eigen::Matrix3Xd listed_position;
+  double listed_margin = 0;
+  bool has_listed = false;
+  std::vector<std::int32_t> far_particles;  // measureListed's scratch: moved at least the margin since, ascending
 
   // Response accumulators, per particle; only touched entries are reset after each pass.
   Eigen::Matrix3Xd displacement;
@@ -107,6 +139,7 @@ struct CollisionWorld::Impl {
     sphere_fixed.resize(static_cast<std::size_t>(muscle_count));
     muscle_spheres.resize(static_cast<std::size_t>(muscle_count));
     muscle_box.resize(static_cast<std::size_t>(muscle_count));
+    sphere_index_of_particle.assign(static_cast<std::size_t>(n), -1);
     for (int m = 0; m < muscle_count; ++m) {
       auto& particles = sphere_particle[static_cast<std::size_t>(m)];
       for (std::int32_t p = system.muscle_begin[static_cast<std::size_t>(m)];
@@ -115,6 +148,7 @@ struct CollisionWorld::Impl {
       SphereSet& spheres = muscle_spheres[static_cast<std::size_t>(m)];
       spheres.resize(static_cast<Eigen::Index>(particles.size()));
       for (std::size_t k = 0; k < particles.size(); ++k) {
+        sphere_index_of_particle[static_cast<std::size_t>(particles[k])] = static_cast<std::int32_t>(k);
         spheres.centre.col(static_cast<Eigen::Index>(k)) = system.rest_position.col(particles[k]);
         spheres.radius[static_cast<Eigen::Index>(k)] = system.radius[particles[k]];
         sphere_fixed[static_cast<std::size_t>(m)].push_back(system.is_fixed[static_cast<std::size_t>(particles[k])]);
@@ -143,8 +177,12 @@ struct CollisionWorld::Impl {
 
   void setFields(std::vector<std::shared_ptr<const BoneDistanceField>> fields) {
     bone_fields = std::move(fields);
+    field_index_of_particle.assign(static_cast<std::size_t>(system.particleCount()), -1);
     for (Eigen::Index p = 0; p < system.particleCount(); ++p)
-      if (!system.is_fixed[static_cast<std::size_t>(p)]) field_particles.push_back(static_cast<std::int32_t>(p));
+      if (!system.is_fixed[static_cast<std::size_t>(p)]) {
+        field_index_of_particle[static_cast<std::size_t>(p)] = static_cast<std::int32_t>(field_particles.size());
+        field_particles.push_back(static_cast<std::int32_t>(p));
+      }
     std::vector<std::uint8_t> closer(static_cast<std::size_t>(system.particleCount()), 0);
     for (std::size_t b = 0; b < bone_fields.size(); ++b) {
       if (!bone_fields[b]) throw std::invalid_argument("CollisionWorld: bone '" + bone_names[b] + "' has no distance field");
@@ -169,8 +207,9 @@ struct CollisionWorld::Impl {
     for (const std::uint8_t c : closer) closer_than_radius_at_rest += c;
   }
 
-  // Every free particle within `margin` of its clearance from a bone field: visit(particle, depth, normal) with depth
-  // = clearance - distance (> 0: too close) and the field's outward unit normal in the world frame.
+  // Every free particle within `margin` of its clearance from a bone field: visit(particle, depth, normal, bone, k)
+  // with depth = clearance - distance (> 0: too close), the field's outward unit normal in the world frame, the bone and
+  // the particle's index in field_particles.
   template <class Visit>
   int forEachFieldContact(const ParticleState& state, double margin, Visit&& visit) const {
     int contacts = 0;
@@ -198,11 +237,25 @@ struct CollisionWorld::Impl {
         if (depth <= -margin) continue;
         const double length = gradient.norm();
         if (!(length > 1e-9)) continue;  // on the field's medial axis or beyond its band: no way out is defined
-        visit(p, depth, Eigen::Vector3d(rotation * gradient / length));
+        visit(p, depth, Eigen::Vector3d(rotation * gradient / length), static_cast<int>(b), kk);
         ++contacts;
       }
     }
     return contacts;
+  }
+
+  // The depth of field_particles[k] in bone b at `x`, as forEachFieldContact finds it without a margin (0: none).
+  double fieldDepth(int b, Eigen::Index k, const Eigen::Vector3d& x) const {
+    const std::size_t ub = static_cast<std::size_t>(b);
+    const AlignedBox& reach = field_reach[ub];
+    if ((x.array() < reach.min.array()).any() || (x.array() > reach.max.array()).any()) return 0;
+    const double clear = field_clearance[ub][k];
+    const Eigen::Vector3d local = bone_transform[ub].inverse() * x;
+    Eigen::Vector3d gradient;
+    double distance = 0;
+    if (!bone_fields[ub]->probe().closerThan(local, clear, distance, gradient)) return 0;
+    const double depth = clear - distance;
+    return depth > 0 && gradient.norm() > 1e-9 ? depth : 0;
   }
 
   // Grows every muscle sphere by `margin` for detection (pairs that may touch within a step), or restores it (0).
@@ -370,6 +423,7 @@ void CollisionWorld::setBoneTransforms(const std::vector<Eigen::Isometry3d>& per
   // A new pose starts a new solve: muscle hierarchies are rebuilt once from the pre-transformed particles and only
   // refitted during the solve's iterations, as in the seeds (a refitted tree grows loose as the shape drifts).
   w.rebuild_muscle_hierarchies = true;
+  w.has_listed = false;  // the listed obstacles and field contacts belong to the previous pose
   for (int b = 0; b < w.bone_count; ++b) {
     const std::size_t ub = static_cast<std::size_t>(b);
     const Eigen::Isometry3d& t = per_bone_index[ub];
@@ -413,9 +467,10 @@ int CollisionWorld::resolve(ParticleState& state) {
     pairs_found += static_cast<std::int64_t>(w.pairs.size());
     for (const SpherePair& pair : w.pairs) bone_contacts += w.respondMuscleBone(m, b, pair) ? 1 : 0;
   });
-  bone_contacts += w.forEachFieldContact(state, 0.0, [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal) {
-    w.addDisplacement(particle, depth * normal);
-  });
+  bone_contacts += w.forEachFieldContact(
+      state, 0.0, [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal, int, Eigen::Index) {
+        w.addDisplacement(particle, depth * normal);
+      });
   stats_.bone_cd_ms += millisecondsSince(start);
 
   // Apply the superposition of every particle's displacements, then stop the particles that collided.
@@ -476,9 +531,12 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
       ++bone_contacts;
     }
   });
+  w.listed_field.clear();
   bone_contacts += w.forEachFieldContact(state, std::max(0.0, margin_m),
-                                         [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal) {
+                                         [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal,
+                                             int bone, Eigen::Index k) {
     contacts.half_spaces.push_back({particle, Eigen::Vector3d(state.position.col(particle) + depth * normal), normal});
+    w.listed_field.emplace_back(bone, k);
   });
   stats_.bone_cd_ms += millisecondsSince(start);
 
@@ -488,6 +546,11 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
   stats_.bones_skipped = skipped;
   ++stats_.resolve_calls;
   last_pairs_found_ = pairs_found;
+  w.listed_pairs.assign(contacts.pairs.begin(), contacts.pairs.end());
+  w.listed_obstacles.assign(contacts.obstacles.begin(), contacts.obstacles.end());
+  w.listed_position = state.position;
+  w.listed_margin = std::max(0.0, margin_m);
+  w.has_listed = true;
 }
 
 CollisionStats CollisionWorld::measure(const ParticleState& state) const {
@@ -510,17 +573,89 @@ CollisionStats CollisionWorld::measure(const ParticleState& state) const {
                                  w.bone_world[static_cast<std::size_t>(b)], pair.second));
     }
   });
-  w.forEachFieldContact(state, 0.0, [&](std::int32_t, double depth, const Eigen::Vector3d&) { bone_sum.add(depth); });
-  CollisionStats result = stats_;
-  result.muscle_muscle_contacts = muscle_sum.count;
-  result.muscle_bone_contacts = bone_sum.count;
-  result.contacts = muscle_sum.count + bone_sum.count;
-  result.max_penetration_muscle_muscle_m = muscle_sum.max;
-  result.mean_penetration_muscle_muscle_m = muscle_sum.mean();
-  result.max_penetration_muscle_bone_m = bone_sum.max;
-  result.mean_penetration_muscle_bone_m = bone_sum.mean();
-  result.bones_skipped = skipped;
-  return result;
+  w.forEachFieldContact(state, 0.0, [&](std::int32_t, double depth, const Eigen::Vector3d&, int, Eigen::Index) {
+    bone_sum.add(depth);
+  });
+  return statsOf(stats_, muscle_sum, bone_sum, skipped);
+}
+
+CollisionStats CollisionWorld::measureListed(const ParticleState& state) const {
+  Impl& w = *impl_;  // scratch only: what measureListed finds does not change the world
+  const Eigen::Matrix3Xd& x = state.position;
+  if (!w.has_listed || x.cols() != w.listed_position.cols() || !(w.listed_margin > 0)) return measure(state);
+  // A contact overlapping now that the search did not list has a particle that moved at least the margin since: the
+  // search grew every sphere by it and reached the bones' fields that much further. Those few particles are checked
+  // against everything here; when there are many (a jump) or bones are spheres, measure() searches again.
+  const double margin_squared = w.listed_margin * w.listed_margin;
+  w.far_particles.clear();
+  for (Eigen::Index p = 0; p < x.cols(); ++p)
+    if ((x.col(p) - w.listed_position.col(p)).squaredNorm() >= margin_squared) {
+      if (static_cast<int>(w.far_particles.size()) == kMostParticlesCheckedAlone) return measure(state);
+      w.far_particles.push_back(static_cast<std::int32_t>(p));
+    }
+  if (!w.far_particles.empty())
+    for (const SphereSet& bone : w.bone_rest)
+      if (bone.size() > 0) return measure(state);
+
+  PenetrationSum muscle_sum, bone_sum;
+  for (const ContactSet::Pair& pair : w.listed_pairs) {
+    const double depth = pair.distance - (x.col(pair.first) - x.col(pair.second)).norm();
+    if (depth > 0) muscle_sum.add(depth);
+  }
+  for (const ContactSet::Obstacle& obstacle : w.listed_obstacles) {
+    const double depth = obstacle.distance - (x.col(obstacle.particle) - obstacle.centre).norm();
+    if (depth > 0) bone_sum.add(depth);
+  }
+  for (const auto& [bone, k] : w.listed_field) {
+    const double depth = w.fieldDepth(bone, k, x.col(w.field_particles[static_cast<std::size_t>(k)]));
+    if (depth > 0) bone_sum.add(depth);
+  }
+  if (w.far_particles.empty()) return statsOf(stats_, muscle_sum, bone_sum, stats_.bones_skipped);
+
+  // The far particles' contacts that were not listed (the listed ones are counted above).
+  const auto is_far = [&](std::int32_t p) {
+    return std::binary_search(w.far_particles.begin(), w.far_particles.end(), p);
+  };
+  std::vector<std::pair<std::int32_t, std::int32_t>> listed_far_pairs;
+  for (const ContactSet::Pair& pair : w.listed_pairs)
+    if (is_far(pair.first) || is_far(pair.second))
+      listed_far_pairs.emplace_back(std::min(pair.first, pair.second), std::max(pair.first, pair.second));
+  std::sort(listed_far_pairs.begin(), listed_far_pairs.end());
+  std::vector<std::pair<int, std::int32_t>> listed_far_fields;  // (bone, particle)
+  for (const auto& [bone, k] : w.listed_field) {
+    const std::int32_t p = w.field_particles[static_cast<std::size_t>(k)];
+    if (is_far(p)) listed_far_fields.emplace_back(bone, p);
+  }
+  std::sort(listed_far_fields.begin(), listed_far_fields.end());
+  for (const std::int32_t p : w.far_particles) {
+    const std::size_t up = static_cast<std::size_t>(p);
+    const std::int32_t k = w.field_index_of_particle.empty() ? -1 : w.field_index_of_particle[up];
+    for (int b = 0; k >= 0 && b < static_cast<int>(w.bone_fields.size()); ++b) {
+      if (std::binary_search(listed_far_fields.begin(), listed_far_fields.end(), std::make_pair(b, p))) continue;
+      const double depth = w.fieldDepth(b, k, x.col(p));
+      if (depth > 0) bone_sum.add(depth);
+    }
+    const std::int32_t i = w.sphere_index_of_particle[up];
+    if (i < 0) continue;
+    const int own = w.system.muscle_of[up];
+    const double radius = w.muscle_radius[static_cast<std::size_t>(own)][i];
+    for (int m = 0; m < w.muscle_count; ++m) {
+      if (m == own) continue;
+      const std::vector<std::int32_t>& others = w.sphere_particle[static_cast<std::size_t>(m)];
+      const Eigen::VectorXd& other_radius = w.muscle_radius[static_cast<std::size_t>(m)];
+      for (std::size_t j = 0; j < others.size(); ++j) {
+        const std::int32_t q = others[j];
+        const double depth = radius + other_radius[static_cast<Eigen::Index>(j)] - (x.col(p) - x.col(q)).norm();
+        if (!(depth > 0)) continue;
+        if (is_far(q) && q < p) continue;  // both far: counted once, from the lower index
+        if (std::binary_search(listed_far_pairs.begin(), listed_far_pairs.end(),
+                               std::make_pair(std::min(p, q), std::max(p, q))))
+          continue;
+        muscle_sum.add(depth);
+      }
+    }
+  }
+  return statsOf(stats_, muscle_sum, bone_sum, stats_.bones_skipped);
 }
 
 void CollisionWorld::resetTiming() {

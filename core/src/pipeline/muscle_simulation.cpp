@@ -286,7 +286,10 @@ void MuscleSimulation::runSolver(const BoneTransforms& transforms, const Stoppin
     collision_->setBoneTransforms(transforms);
     collision_->resetTiming();
     stats.solver = solver_->solve(state_, main);
-    stats.collision = collision_->measure(state_);
+    // Over the contacts the solver's last search listed, completed for the few particles that moved further since than
+    // its margin: the same figures as measure() without a second search of every sphere pair (1.6 against 0.34 ms a
+    // frame on the 26 bundled muscles).
+    stats.collision = collision_->measureListed(state_);
     StoppingSettings one_sweep = main;
     one_sweep.rule = StoppingRule::iterations;
     one_sweep.max_iterations = 1;
@@ -298,7 +301,7 @@ void MuscleSimulation::runSolver(const BoneTransforms& transforms, const Stoppin
            ++extra) {
         addSweepToFrame(solver_->solve(state_, one_sweep), stats.solver);
         ++count;
-        stats.collision = collision_->measure(state_);
+        stats.collision = collision_->measureListed(state_);
       }
     };
     // A warm frame under a time budget whose sweeps left a particle's centre in a bone (a jump, not a smooth stream)

@@ -81,6 +81,10 @@ class CollisionWorld {
 
   // Contacts and remaining penetration in `state` (does not change it); timing fields are the accumulated ones.
   CollisionStats measure(const ParticleState& state) const;
+  // The same figures, measured over the contacts the last findContacts() listed when no particle has moved as far as
+  // that call's margin since (then every contact now overlapping was listed: its spheres were grown by the margin),
+  // and by measure() otherwise, or when nothing was listed since the bones last moved.
+  CollisionStats measureListed(const ParticleState& state) const;
 
   const CollisionStats& accumulatedStats() const { return stats_; }
   void resetTiming();
