@@ -100,6 +100,35 @@ TEST(StreamSession, TheFirstPoseIsSolvedColdAndASmoothNextPoseWarm) {
   EXPECT_EQ(counters.failed, 0u);
 }
 
+TEST(StreamSession, ALateFrameTakesNoCatchUpSweepsWhereAFrameOnTimeDoes) {
+  // One sweep a frame (a zero budget) and up to 4 catch-up sweeps: small hip steps set the stream's typical residual, a
+  // 0.25 rad step (15 rad/s, within the stream's speed limit: warm) then lies far above it.
+  StoppingSettings sweeps = StoppingSettings::withinBudget(0.0, 30);
+  sweeps.residual_tolerance = 1e-3;
+  StreamSessionSettings settings = streamStopping(sweeps);
+  settings.stopping.catch_up_sweeps = 4;
+  settings.stopping.catch_up_residual_ratio = 3.0;
+  settings.refine_unfinished_frames = false;
+  const auto jumpFrame = [&](bool late) {
+    const auto session = sessionOf(settings);
+    double stamp = 10.0;
+    session->offer(stamp, thighAt(*session, 0.3, 0.2), kParticlesOnly);
+    for (int k = 1; k <= 10; ++k) session->offer(stamp += kFrameS, thighAt(*session, 0.3 + 0.002 * k, 0.2), kParticlesOnly);
+    FrameWants wants = kParticlesOnly;
+    wants.late = late;
+    const StreamStep jump = session->offer(stamp += kFrameS, thighAt(*session, 0.57, 0.2), wants);
+    EXPECT_EQ(jump.outcome, StreamOutcome::solved);
+    EXPECT_FALSE(jump.cold) << jump.reason;
+    return jump.frame->stats;
+  };
+  const FrameStats on_time = jumpFrame(false);
+  const FrameStats late = jumpFrame(true);
+  EXPECT_GT(on_time.catch_up_sweeps, 0);
+  EXPECT_EQ(on_time.solver.iterations, 1 + on_time.catch_up_sweeps);
+  EXPECT_EQ(late.catch_up_sweeps, 0);
+  EXPECT_EQ(late.solver.iterations, 1);
+}
+
 TEST(StreamSession, AnUnchangedPoseIsNotSolvedWhenTheLastFrameConverged) {
   const auto session = sessionOf(converging());
   const BoneTransforms pose = thighAt(*session, 0.3, 0.2);

@@ -171,6 +171,7 @@ void MuscleDeformationNode::onJointStates(const sensor_msgs::JointState::ConstPt
   {
     std::lock_guard<std::mutex> lock(pending_mutex_);
     replaced = pending_.has_value();
+    pending_replaced_ = pending_replaced_ || replaced;
     pending_ = stamp;
   }
   pending_changed_.notify_one();
@@ -186,6 +187,7 @@ void MuscleDeformationNode::workerLoop() {
   auto last_pose = std::chrono::steady_clock::now(), last_refinement = last_pose;
   while (true) {
     std::optional<ros::Time> stamp;
+    bool late = false;
     {
       std::unique_lock<std::mutex> lock(pending_mutex_);
       const auto ready = [this] { return stopping_ || pending_.has_value(); };
@@ -195,12 +197,14 @@ void MuscleDeformationNode::workerLoop() {
         pending_changed_.wait(lock, ready);
       if (stopping_) return;
       stamp = pending_;
+      late = pending_replaced_;
       pending_.reset();
+      pending_replaced_ = false;
     }
     const auto now = std::chrono::steady_clock::now();
     if (stamp) {
       last_pose = now;
-      solvePose(*stamp);
+      solvePose(*stamp, late);
     } else if (now - last_pose > 2 * idle_period && now - last_refinement >= refinement_period &&
                anyOutputWanted()) {
       last_refinement = now;
@@ -210,7 +214,7 @@ void MuscleDeformationNode::workerLoop() {
   }
 }
 
-void MuscleDeformationNode::solvePose(const ros::Time& stamp) {
+void MuscleDeformationNode::solvePose(const ros::Time& stamp, bool late) {
   // The transforms sent with poses stamped ahead make tf drop every transform stamped on time: this pose's are gone,
   // the next poses find theirs once the buffer is cleared.
   if (tf_holds_future_data_.exchange(false) && bone_lookup_->clearDataAheadOf(stamp, kFutureStampToleranceS)) {
@@ -232,7 +236,9 @@ void MuscleDeformationNode::solvePose(const ros::Time& stamp) {
   }
   for (const std::string& warning : bones.warnings) ROS_WARN_STREAM_THROTTLE(5.0, "muscle_deformation: " << warning);
   const BoneTransforms transforms = boneTransformsOf(stream_->bones(), poseFromLinkPoses(scene_, bones.link_poses));
-  const StreamStep step = stream_->offer(stamp.toSec(), transforms, frameWants());
+  FrameWants wants = frameWants();
+  wants.late = late;  // poses were dropped while the frame before was solved
+  const StreamStep step = stream_->offer(stamp.toSec(), transforms, wants);
   if (step.restarted) ROS_INFO_STREAM("muscle_deformation: pose at " << stamp << ": cold start: " << step.reason);
   // A refined frame (the pose had not changed) carries the stamp of the pose it refines.
   publish(step, step.outcome == StreamOutcome::refined ? ros::Time(step.stamp_s) : stamp);

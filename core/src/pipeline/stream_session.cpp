@@ -69,8 +69,9 @@ StreamStep StreamSession::solveFrame(double stamp_s, const BoneTransforms& trans
   try {
     // The tissue drag relaxes over the time the stamps say passed since the previous solved pose (poses dropped while
     // the caller was busy included).
-    const FrameResult& frame =
-        pipeline_->solve(transforms, start, settings_.stopping, wants.surfaces, wants.metrics, elapsed_s);
+    FrameStopping stopping = settings_.stopping;
+    if (wants.late) stopping.catch_up_sweeps = 0;
+    const FrameResult& frame = pipeline_->solve(transforms, start, stopping, wants.surfaces, wants.metrics, elapsed_s);
     step.outcome = StreamOutcome::solved;
     step.frame = &frame;
     ++counters_.solved;

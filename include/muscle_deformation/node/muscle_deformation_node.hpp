@@ -56,7 +56,7 @@ class MuscleDeformationNode {
   // Streaming
   void onJointStates(const sensor_msgs::JointState::ConstPtr& message);
   void workerLoop();
-  void solvePose(const ros::Time& stamp);
+  void solvePose(const ros::Time& stamp, bool late);
   bool anyOutputWanted() const;
   FrameWants frameWants() const;
   void publish(const StreamStep& step, const ros::Time& stamp);
@@ -99,6 +99,8 @@ class MuscleDeformationNode {
   std::mutex pending_mutex_;
   std::condition_variable pending_changed_;
   std::optional<ros::Time> pending_;
+  // A newer pose replaced a pending one since the worker last took one: the pose it takes next is late (FrameWants).
+  bool pending_replaced_ = false;
   bool stopping_ = false;
   // A pose stamped ahead of the clock came in: robot_state_publisher's transforms at that stamp displace every older
   // one from tf's buffer (its cache keeps ~30 s behind the newest), so the buffer is cleared when a pose stamped on

@@ -89,6 +89,10 @@ struct FrameResult {
 struct FrameWants {
   bool surfaces = false;
   bool metrics = false;
+  // The caller dropped poses while the frame before was solved: the stream is behind, and this frame takes no
+  // catch-up sweeps past its budget (FrameStopping::catch_up_sweeps), which would drop more. Its residual is high
+  // because it covers the motion of the poses dropped, not because the motion is fast. Deep-contact sweeps still run.
+  bool late = false;
 };
 
 // The fidelity figures (the surface metrics and the particles' depth in bone) by their ~stats names, as an absence
