@@ -27,6 +27,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -233,14 +234,27 @@ struct MotionFigures {
   std::uint32_t restarts = 0;
 };
 
+// The frames' strain p99: the upper median and the largest (NaN when no frame was solved).
+struct StrainFigures {
+  double p99_median = std::nan(""), p99_max = std::nan("");
+};
+
+StrainFigures strainFiguresOf(std::vector<double> strain_p99) {
+  StrainFigures figures;
+  if (strain_p99.empty()) return figures;
+  std::sort(strain_p99.begin(), strain_p99.end());
+  figures.p99_median = strain_p99[strain_p99.size() / 2];
+  figures.p99_max = strain_p99.back();
+  return figures;
+}
+
 // The motion's own strain, without the stream's lag: the same poses played as a stream whose every frame runs until it
 // meets the node's residual criterion (at most kReferenceSweeps sweeps), so each frame's answer is the converged one
 // of the stream's well-posed problem (the tissue carrying its own previous frame). Strain p99 over the frames after the
 // first, as the streamed figures; `converged_frames` says how many met the criterion within the cap.
 constexpr int kReferenceSweeps = 150;
 
-struct ConvergedStrain {
-  double p99_median = std::nan(""), p99_max = std::nan("");
+struct ConvergedStrain : StrainFigures {
   int frames = 0, converged_frames = 0;
 };
 
@@ -259,11 +273,7 @@ ConvergedStrain convergedStrain(const BundledScene& bundled, const Setup& setup,
     ++result.frames;
     if (frame->stats.solver.converged) ++result.converged_frames;
   }
-  if (!strain_p99.empty()) {
-    std::sort(strain_p99.begin(), strain_p99.end());
-    result.p99_median = strain_p99[strain_p99.size() / 2];
-    result.p99_max = strain_p99.back();
-  }
+  static_cast<StrainFigures&>(result) = strainFiguresOf(std::move(strain_p99));
   return result;
 }
 
@@ -295,9 +305,9 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
     }
   }
   figures.frame_ms_median = frame_ms.empty() ? std::nan("") : bench::median(frame_ms);
-  std::sort(strain_p99.begin(), strain_p99.end());
-  figures.strain_p99_median = strain_p99.empty() ? std::nan("") : strain_p99[strain_p99.size() / 2];
-  figures.strain_p99_max = strain_p99.empty() ? std::nan("") : strain_p99.back();
+  const StrainFigures strain = strainFiguresOf(std::move(strain_p99));
+  figures.strain_p99_median = strain.p99_median;
+  figures.strain_p99_max = strain.p99_max;
   // The motion stops: the last pose held; each held pose refines an unfinished frame.
   for (int held = 1; held <= held_poses; ++held) {
     take(stream.offer(motion.back()));
