@@ -34,13 +34,14 @@
 // 128 separate fibres keeps fewer (the count used is written).
 //
 // Writes out/bench/speed_vs_error.json: one object per configuration (keys below; null where not measured), one per
-// (model, muscle) for the per-muscle errors (solver "per_muscle") and one per model for its references (solver
-// "reference").
+// (model, muscle) for the per-muscle errors (solver "per_muscle"), one per model for its references (solver
+// "reference") and one for the machine's measured bandwidth and floating-point rate (solver "machine").
 //
 //   speed_error_bench [--out DIR] [--quick]
 #include "bench_util.hpp"
 #include "convergence_run.hpp"
 #include "gait_lengths.hpp"
+#include "machine_floor.hpp"
 #include "node_defaults.hpp"
 #include "stream_play.hpp"
 #ifdef MD_HAVE_BULLET
@@ -716,6 +717,20 @@ int main(int argc, char** argv) {
       measurePeer(c, v, r, 1, true, options.quick ? 20.0 : 60.0);
     }
   };
+  // The machine's memory bandwidth and floating-point rate on every core, measured before the models so that the
+  // section names the machine its times were taken on without depending on another bench's run.
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const bench::MachineFloor machine = bench::measureMachineFloor(cores);
+  std::printf("[%6.1f s] machine: %.1f GB/s, %.1f Gflop/s on %d threads\n", elapsedSeconds(), machine.bandwidth_gbs,
+              machine.gflops, machine.threads);
+  c.records.begin();
+  c.records.add("scene", "thigh13");
+  c.records.add("solver", "machine");
+  c.records.add("bandwidth_gbs", machine.bandwidth_gbs);
+  c.records.add("gflops", machine.gflops);
+  c.records.add("floor_threads", static_cast<double>(machine.threads));
+  c.records.end();
+
   for (const ModelVariant& v : models) run(v);
 
   // Resolution per muscle: the coarsest measured nearest18 model whose surface error for that muscle stays within the
