@@ -341,3 +341,71 @@ TEST(StreamSession, ASolveThatThrowsAfterSolvedFramesIsAFailedStepAndTheStreamRe
   ASSERT_NE(next.frame, nullptr);
   EXPECT_FALSE(next.frame->stats.warm_started);
 }
+
+namespace {
+
+// The small thigh at 40 particles per fibre, its first muscle with 20 of its own, streamed within `budget_ms`.
+std::unique_ptr<StreamSession> autoResolutionSession(double budget_ms) {
+  SyntheticScene scene = makeSyntheticThigh(2, 4);
+  scene.muscles.front().particles_per_fibre = 20;
+  std::vector<MuscleDescription> descriptions = describedByName(scene.muscles);
+  PipelineSettings pipeline = smallPipeline();
+  pipeline.simulation.model.particles_per_fibre = 40;
+  StreamSessionSettings settings = streamStopping(StoppingSettings::withinBudget(budget_ms, 30));
+  settings.auto_resolution = true;
+  return std::make_unique<StreamSession>(std::move(descriptions), std::move(scene.muscles), std::move(scene.bones),
+                                         pipeline, settings);
+}
+
+}  // namespace
+
+TEST(StreamSession, AutoResolutionKeepsTheConfiguredModelWhenItsOneSweepSolveFitsTheBudget) {
+  const auto session = autoResolutionSession(1e6);
+  ASSERT_TRUE(session->resolutionFit().has_value());
+  const ResolutionFit& fit = *session->resolutionFit();
+  ASSERT_EQ(fit.models.size(), 1u);
+  EXPECT_TRUE(fit.fits());
+  EXPECT_FALSE(fit.changed());
+  EXPECT_EQ(fit.models.front().particles_per_fibre, 40);
+  EXPECT_GT(fit.models.front().solve_ms, 0.0);
+  EXPECT_EQ(fit.models.front().particles, session->pipeline().system().particleCount());
+  EXPECT_EQ(session->pipeline().muscles().front().particles_per_fibre, 20) << "a muscle's own resolution stays";
+  EXPECT_CONTAINS(fit.describe(), "within the 1000000.0 ms budget: the stream keeps it");
+  // The timing solves leave nothing behind: the first pose is the stream's first, solved cold.
+  const StreamStep first = session->offer(10.0, thighAt(*session, 0.3, 0.2), kParticlesOnly);
+  EXPECT_EQ(first.outcome, StreamOutcome::solved);
+  EXPECT_TRUE(first.cold);
+  EXPECT_CONTAINS(first.reason, "first pose");
+}
+
+TEST(StreamSession, AutoResolutionBuildsCoarserModelsDownToTheCoarsestWhenNoneFits) {
+  // A zero budget: no solve fits, so the fit goes straight to the coarsest model and says the budget is still missed.
+  const auto session = autoResolutionSession(0.0);
+  ASSERT_TRUE(session->resolutionFit().has_value());
+  const ResolutionFit& fit = *session->resolutionFit();
+  ASSERT_EQ(fit.models.size(), 2u);
+  EXPECT_FALSE(fit.fits());
+  EXPECT_TRUE(fit.changed());
+  EXPECT_EQ(fit.models[0].particles_per_fibre, 40);
+  EXPECT_EQ(fit.models[1].particles_per_fibre, ResolutionFit::kCoarsestParticlesPerFibre);
+  EXPECT_LT(fit.models[1].particles, fit.models[0].particles / 2) << "a quarter of the particles per fibre";
+  EXPECT_EQ(fit.models[1].particles, session->pipeline().system().particleCount());
+  EXPECT_EQ(session->pipeline().muscles().front().particles_per_fibre, 5) << "20 scaled as 40 -> 10";
+  const std::string said = fit.describe();
+  EXPECT_CONTAINS(said, "at 40 particles per fibre (" + std::to_string(fit.models[0].particles) + " particles) ");
+  EXPECT_CONTAINS(said, "over the 0.0 ms budget; at 10 particles per fibre (");
+  EXPECT_CONTAINS(said, "The stream uses 10 particles per fibre, still over the budget");
+  EXPECT_CONTAINS(said, "single poses (~deform_pose) keep 40");
+  const StreamStep first = session->offer(10.0, thighAt(*session, 0.3, 0.2), kParticlesOnly);
+  EXPECT_EQ(first.outcome, StreamOutcome::solved);
+  EXPECT_TRUE(first.cold);
+  EXPECT_TRUE(first.frame->stats.finite);
+}
+
+TEST(StreamSession, AutoResolutionWithoutATimeBudgetIsRefusedNamingWhy) {
+  StreamSessionSettings settings = oneSweep();
+  settings.auto_resolution = true;
+  EXPECT_CONTAINS(validate(settings), "auto_resolution");
+  EXPECT_CONTAINS(validate(settings), "time_budget");
+  EXPECT_THROW(sessionOf(settings), std::invalid_argument);
+}

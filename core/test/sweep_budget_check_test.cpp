@@ -36,3 +36,15 @@ TEST(SweepBudgetCheck, AMachineThatFitsASweepHearsNothingAndNoRateMeansNoJudgeme
   for (int k = 0; k < 2 * SweepBudgetCheck::kFramesJudged; ++k) EXPECT_EQ(no_rate.add(frameOf(50, 1), true), "");
   EXPECT_FALSE(no_rate.judged());
 }
+
+TEST(SweepBudgetCheck, AModelAutoResolutionChoseIsNotOfferedItAgain) {
+  SweepBudgetCheck check(1000.0 / 60, /*resolution_fitted=*/true);
+  std::string notice;
+  for (int k = 0; k < SweepBudgetCheck::kFramesJudged; ++k) notice = check.add(frameOf(30, 1), true);
+  EXPECT_NE(notice.find("one sweep takes 30.0 ms"), std::string::npos) << notice;
+  EXPECT_NE(notice.find("auto_resolution chose this model already"), std::string::npos) << notice;
+  EXPECT_EQ(notice.find("particles_per_fibre 10"), std::string::npos) << notice;
+  SweepBudgetCheck unfitted(1000.0 / 60);
+  for (int k = 0; k < SweepBudgetCheck::kFramesJudged; ++k) notice = unfitted.add(frameOf(30, 1), true);
+  EXPECT_NE(notice.find("auto_resolution: true"), std::string::npos) << notice;
+}

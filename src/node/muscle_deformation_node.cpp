@@ -57,6 +57,13 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   ROS_INFO_STREAM("muscle_deformation: scene " << settings_.scene_path << ", fixed frame '" << settings_.fixed_frame
                                                << "'; built " << pipeline.describe() << "; startup " << startup_ms
                                                << " ms");
+  if (const auto& fit = stream_->resolutionFit()) {
+    if (fit->changed()) ROS_WARN_STREAM("muscle_deformation: " << fit->describe());
+    else ROS_INFO_STREAM("muscle_deformation: " << fit->describe());
+    sweep_budget_ = SweepBudgetCheck(settings_.stream.expected_rate_hz > 0 ? 1000.0 / settings_.stream.expected_rate_hz
+                                                                          : 0.0,
+                                     /*resolution_fitted=*/true);
+  }
   for (const std::string& repair : scene_.repairs) ROS_WARN_STREAM("muscle_deformation: " << repair);
   for (const std::string& warning : scene_.warnings) ROS_WARN_STREAM("muscle_deformation: " << warning);
   for (const std::string& warning : pipeline.buildReport().warnings) ROS_WARN_STREAM("muscle_deformation: " << warning);

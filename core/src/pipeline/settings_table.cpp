@@ -175,6 +175,10 @@ std::vector<SettingSpec> buildTable() {
               "a pose no bone moved in, while the last frame has not met its residual criterion, gets more sweeps of "
               "that frame (and so does the time between poses when the input stops), until it converges",
               [](CoreSettings& s) -> bool& { return s.stream.refine_unfinished_frames; }),
+      boolean("auto_resolution",
+              "at startup the stream's model gets fewer particles per fibre (down to 10) until a one-sweep solve, "
+              "timed on this machine, fits time_budget_ms; single poses keep particles_per_fibre",
+              [](CoreSettings& s) -> bool& { return s.stream.auto_resolution; }),
       // Collision
       boolean("collisions", "sphere collision muscle-bone and muscle-muscle",
               [](CoreSettings& s) -> bool& { return s.pipeline.simulation.collisions; }),

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <string>
 
 namespace muscle_deformation {
 
@@ -14,14 +15,21 @@ std::string SweepBudgetCheck::add(const FrameStats& stats, bool warm) {
                    sweep_ms_.end());
   median_sweep_ms_ = sweep_ms_[sweep_ms_.size() / 2];
   if (median_sweep_ms_ <= pose_period_ms_) return {};
-  char text[512];
+  char text[768];
   std::snprintf(text, sizeof text,
                 "one sweep takes %.1f ms on this machine (median of the first %d frames), longer than the %.1f ms "
                 "between poses: every frame overruns, and the poses that arrive while it is solved are dropped (the "
-                "newest is solved next). A lighter model: particles_per_fibre 10 instead of 20 (on the bundled "
-                "scene 0.54 of the particles and 0.52-0.55 of the time per sweep), or fewer muscles in the scene.",
+                "newest is solved next). ",
                 median_sweep_ms_, kFramesJudged, pose_period_ms_);
-  return text;
+  const std::string lighter =
+      resolution_fitted_
+          ? "auto_resolution chose this model already (its startup message): fewer muscles in the scene would be "
+            "lighter still."
+          : "A lighter model: particles_per_fibre 10 instead of 20 (on the bundled scene 0.54 of the particles and "
+            "0.52-0.55 of the time per sweep; auto_resolution: true chooses the resolution at startup from a timed "
+            "solve), or fewer muscles in the scene.";
+  return text + lighter;
+
 }
 
 }  // namespace muscle_deformation

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <exception>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -36,8 +37,33 @@ struct StreamSessionSettings {
   // spent on more sweeps of that frame, within the frame's stopping, until it converges or its residual stops falling
   // (ten refinements without one that lowers the frame's lowest residual by 1 %; refine()).
   bool refine_unfinished_frames = true;
+  // The stream's model made coarser at construction until a one-sweep solve fits stopping.sweeps.time_budget_ms on
+  // this machine, as measured there (StreamSession::resolutionFit()): a machine too slow for the configured model then
+  // streams a lighter one instead of overrunning every frame. Needs the time_budget rule (the budget is what is fitted).
+  bool auto_resolution = false;
 };
 std::string validate(const StreamSessionSettings& settings);
+
+// What auto_resolution measured and chose: each model it built, coarsest last, with its one-sweep solve time.
+struct ResolutionFit {
+  // The coarsest model it builds: the coarsest the speed-against-error report measures (docs/BENCHMARKS.md).
+  static constexpr int kCoarsestParticlesPerFibre = 10;
+  static constexpr int kMostModels = 4;
+  static constexpr int kTimedSolves = 7;  // warm one-sweep solves timed per model (the median counts)
+
+  struct Model {
+    int particles_per_fibre = 0;  // the model-wide value; a muscle with its own is scaled alike
+    long particles = 0;
+    double solve_ms = 0;  // median wall time of a warm one-sweep solve (no surfaces or metrics)
+  };
+  std::vector<Model> models;  // in the order built; the last is the stream's
+  double budget_ms = 0;
+
+  bool fits() const { return !models.empty() && models.back().solve_ms <= budget_ms; }
+  bool changed() const { return models.size() > 1; }
+  // One paragraph for the startup log: what was measured, what the stream uses, where the error it costs is reported.
+  std::string describe() const;
+};
 
 enum class StreamOutcome {
   solved,     // a new pose was solved
@@ -101,6 +127,8 @@ class StreamSession {
   void continueFrom(double stamp_s, const BoneTransforms& transforms, const Eigen::Matrix3Xd& position);
 
   const StreamCounters& counters() const { return counters_; }
+  // What auto_resolution measured and chose (absent when it is off).
+  const std::optional<ResolutionFit>& resolutionFit() const { return resolution_fit_; }
   const DeformationPipeline& pipeline() const { return *pipeline_; }
   const std::vector<Bone>& bones() const { return pipeline_->bones(); }
   const StreamSessionSettings& settings() const { return settings_; }
@@ -109,11 +137,16 @@ class StreamSession {
   StreamStep solveFrame(double stamp_s, const BoneTransforms& transforms, StartMode start, double elapsed_s,
                         const FrameWants& wants, StreamStep step);
   void count(const FrameResult& frame);
+  // Builds pipeline_ at the configured resolution, then coarser ones while a one-sweep solve overruns the budget.
+  void buildFittedPipeline(const std::vector<MuscleDescription>& descriptions, const std::vector<Muscle>& muscles,
+                           const std::vector<Bone>& bones, const PipelineSettings& pipeline,
+                           const BoneFields& bone_fields);
   void failed(StreamStep& step, const std::exception& error);
 
   StreamSessionSettings settings_;
   std::unique_ptr<DeformationPipeline> pipeline_;
   std::unique_ptr<PoseStream> poses_;
+  std::optional<ResolutionFit> resolution_fit_;
   StreamCounters counters_;
   bool last_frame_unfinished_ = false;  // the last solved frame measured a residual above its tolerance
   double best_residual_ = -1;           // the lowest residual of the current frame so far (-1: not measured)
