@@ -162,9 +162,9 @@ class Stream {
   Stream(const Scene& scene, const Setup& setup)
       : session_(scene.muscle_descriptions, scene.muscles, scene.bones, setup.pipeline, setup.stream) {}
   // The frame the stream solved for `pose`; nullptr when it solved nothing (no bone moved).
-  const FrameResult* offer(const Pose& pose) {
-    const StreamStep step = session_.offer(bench::streamStamp(played_++), boneTransformsOf(session_.bones(), pose),
-                                           FrameWants{});
+  const FrameResult* offer(const Pose& pose, const FrameWants& wants = {}) {
+    const StreamStep step =
+        session_.offer(bench::streamStamp(played_++), boneTransformsOf(session_.bones(), pose), wants);
     last_cold_ = step.cold;
     return bench::frameOf(step);
   }
@@ -232,7 +232,26 @@ struct MotionFigures {
   double frame_ms_median = 0;    // the motion's solved frames (not the hold)
   bool settled_converged = false;
   std::uint32_t restarts = 0;
+  // The last frame solved within the first kHeldPosesJudged held poses (0: the motion's last frame, when the hold
+  // solved none): the worst muscle's volume error of its skinned surface before any correction (the model's own, as
+  // the fidelity section measures it; NaN: not measured) and its strain p99, to set against the gait's.
+  int after_hold_poses = -1;
+  double after_hold_volume_error_max_pct = std::nan("");
+  double after_hold_strain_p99 = std::nan("");
 };
+
+// Issue 29's window: within this many received poses of the hold, the model's volume and residual must be back.
+constexpr int kHeldPosesJudged = 30;
+
+// The stream's own setup, with the skinned surfaces' metrics available on request: the surfaces as the particles carry
+// them, neither moved out of the bones nor projected to their rest volume, so their volume is the model's.
+Setup measuringModelVolume(Setup setup) {
+  setup.pipeline.skin_surfaces = true;
+  setup.pipeline.measure_fidelity = true;
+  setup.pipeline.keep_surfaces_out_of_bones = false;
+  setup.pipeline.surface_volume.keep_volume = false;
+  return setup;
+}
 
 // The frames' strain p99: the upper median and the largest (NaN when no frame was solved).
 struct StrainFigures {
@@ -256,6 +275,7 @@ constexpr int kReferenceSweeps = 150;
 
 struct ConvergedStrain : StrainFigures {
   int frames = 0, converged_frames = 0;
+  double last_p99 = std::nan("");  // the last pose's, the one a hold holds: what a held stream should come back to
 };
 
 ConvergedStrain convergedStrain(const BundledScene& bundled, const Setup& setup, const std::vector<Pose>& motion) {
@@ -270,6 +290,7 @@ ConvergedStrain convergedStrain(const BundledScene& bundled, const Setup& setup,
     const FrameResult* frame = stream.offer(motion[k]);
     if (!frame || k == 0) continue;
     strain_p99.push_back(frame->stats.solver.strain_p99);
+    result.last_p99 = frame->stats.solver.strain_p99;
     ++result.frames;
     if (frame->stats.solver.converged) ++result.converged_frames;
   }
@@ -280,11 +301,18 @@ ConvergedStrain convergedStrain(const BundledScene& bundled, const Setup& setup,
 MotionFigures motionCase(Report& report, bench::JsonRecords& records, const BundledScene& bundled, const Setup& setup,
                          const std::string& name, const std::string& description, const std::vector<Pose>& motion,
                          int held_poses) {
-  Stream stream(bundled.scene, setup);
+  Stream stream(bundled.scene, measuringModelVolume(setup));
   const DeformationPipeline& simulation = stream.pipeline();
   const MuscleTetrahedra tetrahedra = buildMuscleTetrahedra(simulation.system());
   Outcome outcome;
   MotionFigures figures;
+  const FrameWants model_volume{false, true};
+  const auto takeAfterHold = [&](const FrameResult* frame, int held) {
+    if (!frame) return;
+    figures.after_hold_poses = held;
+    figures.after_hold_strain_p99 = frame->stats.solver.strain_p99;
+    figures.after_hold_volume_error_max_pct = frame->has_metrics ? frame->metrics.volume_error_max_pct : std::nan("");
+  };
   const auto take = [&](const FrameResult* frame) {
     if (!frame) return;
     accumulate(outcome, simulation, frame->stats);
@@ -297,8 +325,10 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   };
   std::vector<double> strain_p99, frame_ms;
   for (std::size_t k = 0; k < motion.size(); ++k) {
-    const FrameResult* frame = stream.offer(motion[k]);
+    const bool last = k + 1 == motion.size();
+    const FrameResult* frame = stream.offer(motion[k], last ? model_volume : FrameWants{});
     take(frame);
+    if (last) takeAfterHold(frame, 0);
     if (frame && k > 0) {
       strain_p99.push_back(frame->stats.solver.strain_p99);
       frame_ms.push_back(frame->stats.solver.total_ms);
@@ -310,7 +340,10 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   figures.strain_p99_max = strain.p99_max;
   // The motion stops: the last pose held; each held pose refines an unfinished frame.
   for (int held = 1; held <= held_poses; ++held) {
-    take(stream.offer(motion.back()));
+    const bool judged = held <= kHeldPosesJudged;
+    const FrameResult* frame = stream.offer(motion.back(), judged ? model_volume : FrameWants{});
+    take(frame);
+    if (judged) takeAfterHold(frame, held);
     if (!stream.wantsRefinement()) {
       figures.held_until_settled = held;
       break;
@@ -344,7 +377,15 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   if (figures.held_until_settled >= 0) records.add("held_poses_until_settled", figures.held_until_settled);
   records.add("settled_converged", figures.settled_converged ? 1.0 : 0.0);
   if (figures.residual_last >= 0) records.add("residual_last", figures.residual_last);
+  records.add("after_hold_poses", figures.after_hold_poses);
+  records.addMeasured("after_hold_volume_error_max_pct", figures.after_hold_volume_error_max_pct);
+  records.addMeasured("after_hold_strain_p99", figures.after_hold_strain_p99);
+  records.addMeasured("converged_last_strain_p99", converged.last_p99);
   records.end();
+  std::printf("[%6.1f s] %-22s after the hold (held pose %d, within %d): model volume error max %.3f %%, strain p99 "
+              "%.3f (the held pose converged: %.3f)\n",
+              report.elapsedSeconds(), name.c_str(), figures.after_hold_poses, kHeldPosesJudged,
+              figures.after_hold_volume_error_max_pct, figures.after_hold_strain_p99, converged.last_p99);
   std::printf("[%6.1f s] %-22s frame %.1f ms median, %d catch-up sweeps; converged frame by frame (%d of %d met the "
               "criterion): strain p99 median %.3f max %.3f\n",
               report.elapsedSeconds(), name.c_str(), figures.frame_ms_median, figures.catch_up_sweeps,

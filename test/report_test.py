@@ -194,6 +194,28 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("beyond what more sweeps can give: kick (0.450 converged against 0.500 streamed).", text)
         self.assertNotIn("deep (0.390", text)
 
+    def test_after_the_hold_the_jumps_volume_and_residual_and_every_motions_strain_are_judged(self):
+        gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,
+                "strain_p99_max": 0.4, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1, "deepest_particle": "",
+                "particle_volume_error_max_pct": 2.0, "held_poses_until_settled": 40.0, "settled_converged": 1.0,
+                "after_hold_poses": 30.0, "after_hold_volume_error_max_pct": 0.5, "after_hold_strain_p99": 0.19,
+                "converged_last_strain_p99": 0.18}
+        jump = dict(gait, case="hold_then_jump", held_poses_until_settled=20.0, after_hold_poses=20.0,
+                    after_hold_volume_error_max_pct=1.25, after_hold_strain_p99=0.15, converged_last_strain_p99=0.15)
+        kick = dict(gait, case="kick", after_hold_strain_p99=0.31, after_hold_volume_error_max_pct=None)
+        text = "\n".join(accuracy_report.stability_section([gait, jump, kick]))
+        self.assertIn("| 40 (converged) | 0.500 / 0.190 (converged 0.180) (30) |", text)
+        self.assertIn("| - / 0.310 (converged 0.180) (30) |", text)  # the volume not measured stays absent
+        self.assertIn("the model's volume error at most 1.250 % at the worst muscle (target <= 5 %: met); the residual "
+                      "criterion met after 20 held poses (met).", text)
+        # 0.19 against 0.18 is within the histogram's 6.25 %; 0.31 against 0.18 is not.
+        self.assertIn("gait_1x 0.190 against 0.180; hold_then_jump 0.150 against 0.150; kick 0.310 against 0.180. "
+                      "Still above it: kick.", text)
+        late = dict(jump, held_poses_until_settled=31.0, after_hold_volume_error_max_pct=6.0)
+        text = "\n".join(accuracy_report.stability_section([gait, late]))
+        self.assertIn("at most 6.000 % at the worst muscle (target <= 5 %: missed); the residual criterion not met "
+                      "within them (missed).", text)
+
 
 
 class RooflineTest(unittest.TestCase):
