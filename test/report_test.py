@@ -164,6 +164,25 @@ class LengthTarget(unittest.TestCase):
         self.assertIn("No counterpart in gait2392: obturator.", text)
 
 
+class NodeOnTheGait(unittest.TestCase):
+    def test_times_are_of_the_pose_frames_and_fidelity_of_every_frame_shown(self):
+        columns = ["solve_ms", "total_ms", "iterations", "refined", "has_surface_metrics", "has_collision_metrics",
+                   "volume_error_mean_pct", "volume_error_max_pct", "max_penetration_sphere_bone_m",
+                   "max_surface_inside_bone_m", "max_particle_inside_bone_m", "metrics_ms"]
+        frames = [(20.0, 30.0, 1, "False", 0.01), (40.0, 50.0, 10, "False", 0.02), (90.0, 99.0, 1, "True", 0.05)]
+        with tempfile.TemporaryDirectory() as directory:
+            path = pathlib.Path(directory) / "stats.csv"
+            with open(path, "w") as out:
+                out.write(",".join(columns) + "\n")
+                for solve, total, iterations, refined, volume in frames:
+                    out.write(f"{solve},{total},{iterations},{refined},True,True,{volume},{volume},0.0001,0.0002,"
+                              f"0.0001,2.0\n")
+            text = "\n".join(bench_report.gait_section(path))
+        self.assertIn("also published 1 refinements of unfinished frames", text)
+        # 2 pose frames: solve median 30.0 ms (not 40 with the refinement), max 40; the worst volume over all 3 frames.
+        self.assertIn("| 2 | 30.0 / 40 | 0.56 | 40.0 | 2.0 | 0.02 | 0.05 |", text)
+
+
 class StabilityMotions(unittest.TestCase):
     def test_motions_get_their_own_table_with_the_gaits_yardstick(self):
         motion = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.12,
