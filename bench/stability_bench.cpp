@@ -234,7 +234,8 @@ struct MotionFigures {
   std::uint32_t restarts = 0;
   // The last frame solved within the first kHeldPosesJudged held poses (0: the motion's last frame, when the hold
   // solved none): the worst muscle's volume error of its skinned surface before any correction (the model's own, as
-  // the fidelity section measures it; NaN: not measured) and its strain p99, to set against the gait's.
+  // the fidelity section measures it; NaN: not measured) and its strain p99, to set against the held pose's own strain
+  // when converged (ConvergedStrain::last_p99).
   int after_hold_poses = -1;
   double after_hold_volume_error_max_pct = std::nan("");
   double after_hold_strain_p99 = std::nan("");
