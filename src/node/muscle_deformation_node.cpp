@@ -20,6 +20,11 @@ constexpr double kFutureStampToleranceS = 0.5;
 // poses beside it).
 constexpr double kIdleRefinementPeriodS = 0.1;
 
+// The time between two poses at the expected rate (0: no rate expected, so nothing is judged against it).
+double posePeriodMs(const NodeSettings& settings) {
+  return settings.stream.expected_rate_hz > 0 ? 1000.0 / settings.stream.expected_rate_hz : 0.0;
+}
+
 // Sets a thread cap for as long as it lives, and lifts it however the scope is left.
 class ThreadCapHold {
  public:
@@ -39,7 +44,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
       private_node_(private_node),
       settings_(readNodeSettings(private_node_, packageRoot())),
       pose_diagnostics_(settings_.stream.expected_rate_hz),
-      sweep_budget_(settings_.stream.expected_rate_hz > 0 ? 1000.0 / settings_.stream.expected_rate_hz : 0.0),
+      sweep_budget_(posePeriodMs(settings_)),
       tf_buffer_(ros::Duration(30.0)),
       tf_listener_(tf_buffer_, node_),
       diagnostics_(node_, private_node_) {
@@ -60,9 +65,7 @@ MuscleDeformationNode::MuscleDeformationNode(const ros::NodeHandle& node, const 
   if (const auto& fit = stream_->resolutionFit()) {
     if (fit->changed()) ROS_WARN_STREAM("muscle_deformation: " << fit->describe());
     else ROS_INFO_STREAM("muscle_deformation: " << fit->describe());
-    sweep_budget_ = SweepBudgetCheck(settings_.stream.expected_rate_hz > 0 ? 1000.0 / settings_.stream.expected_rate_hz
-                                                                          : 0.0,
-                                     /*resolution_fitted=*/true);
+    sweep_budget_ = SweepBudgetCheck(posePeriodMs(settings_), /*resolution_fitted=*/true);
   }
   for (const std::string& repair : scene_.repairs) ROS_WARN_STREAM("muscle_deformation: " << repair);
   for (const std::string& warning : scene_.warnings) ROS_WARN_STREAM("muscle_deformation: " << warning);

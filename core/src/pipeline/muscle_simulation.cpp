@@ -1,5 +1,6 @@
 #include "muscle_simulation.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
 #include "muscle_deformation/core/base/stopwatch.hpp"
 
 #include <algorithm>
@@ -120,11 +121,7 @@ void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
   for (std::size_t s = 0; s < system_.springs.size(); ++s)
     material.push_back(system_.springs.stiffness[static_cast<Eigen::Index>(s)] *
                        system_.springs.rest_length[static_cast<Eigen::Index>(s)]);
-  double constant = 1.0;
-  if (!material.empty()) {
-    std::nth_element(material.begin(), material.begin() + static_cast<std::ptrdiff_t>(material.size() / 2), material.end());
-    constant = material[material.size() / 2];
-  }
+  const double constant = material.empty() ? 1.0 : upperMedian(std::move(material));
   VolumeTerm term;
   term.rest_volume_m3 = volume_->restVolumes();
   for (int m = 0; m < volume_->muscleCount(); ++m) {

@@ -2,6 +2,7 @@
 
 #include "pose_stream.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
 #include "muscle_deformation/core/base/stopwatch.hpp"
 
 #include <algorithm>
@@ -31,8 +32,7 @@ double oneSweepSolveMs(DeformationPipeline& pipeline, const FrameStopping& strea
     times.push_back(millisecondsSince(start));
   }
   pipeline.reset();
-  std::nth_element(times.begin(), times.begin() + static_cast<std::ptrdiff_t>(times.size() / 2), times.end());
-  return times[times.size() / 2];
+  return upperMedian(std::move(times));
 }
 
 }  // namespace

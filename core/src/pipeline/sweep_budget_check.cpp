@@ -1,5 +1,7 @@
 #include "muscle_deformation/core/pipeline/sweep_budget_check.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
+
 #include <algorithm>
 #include <cstdio>
 #include <string>
@@ -11,9 +13,7 @@ std::string SweepBudgetCheck::add(const FrameStats& stats, bool warm) {
   sweep_ms_.push_back(stats.solver.total_ms / stats.solver.iterations);
   if (static_cast<int>(sweep_ms_.size()) < kFramesJudged) return {};
   judged_ = true;
-  std::nth_element(sweep_ms_.begin(), sweep_ms_.begin() + static_cast<std::ptrdiff_t>(sweep_ms_.size() / 2),
-                   sweep_ms_.end());
-  median_sweep_ms_ = sweep_ms_[sweep_ms_.size() / 2];
+  median_sweep_ms_ = upperMedian(sweep_ms_);
   if (median_sweep_ms_ <= pose_period_ms_) return {};
   char text[768];
   std::snprintf(text, sizeof text,

@@ -2,6 +2,7 @@
 #include "muscle_deformation/preprocessing/attachment_sites.hpp"
 
 #include "muscle_deformation/core/base/inside_test.hpp"
+#include "muscle_deformation/core/base/median.hpp"
 #include "muscle_deformation/core/scene/opensim_model.hpp"
 
 #include <algorithm>
@@ -44,12 +45,6 @@ double arcPosition(const std::vector<Eigen::Vector3d>& path, const Eigen::Vector
     start += length;
   }
   return best_arc;
-}
-
-double median(std::vector<double> values) {
-  const std::size_t middle = values.size() / 2;
-  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(middle), values.end());
-  return values[middle];
 }
 
 }  // namespace
@@ -215,8 +210,8 @@ TendonPaths placeAgainstBelly(const std::vector<PathCandidate>& candidates, cons
       last.push_back(arcPosition(path, fibre.col(fibre.cols() - 1)));
     }
     if (!first.empty()) {
-      origin_end = median(first);
-      insertion_end = median(last);
+      origin_end = upperMedian(first);
+      insertion_end = upperMedian(last);
     }
     for (std::size_t k = 1; k < path.size(); ++k) arcs[k] = arcs[k - 1] + (path[k] - path[k - 1]).norm();
   }

@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/solvers/block_descent_solver.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
 #include "muscle_deformation/core/base/stopwatch.hpp"
 
 #include <Eigen/Dense>
@@ -24,13 +25,6 @@ int everyCore() {
 #else
   return 1;
 #endif
-}
-
-double median(std::vector<double> values) {
-  if (values.empty()) return 0.0;
-  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), middle, values.end());
-  return *middle;
 }
 
 // A particle's force and symmetric 3 x 3 Hessian, accumulated in scalars (the sweep's inner loop).
@@ -212,7 +206,7 @@ double relativeSpringResidual(const MassSpringSystem& system, const Eigen::Matri
     sum += force.col(i).squaredNorm();
     ++free_count;
   }
-  const double constant = median(std::move(material));
+  const double constant = material.empty() ? 0.0 : upperMedian(std::move(material));
   if (free_count == 0 || constant <= 0) return 0.0;
   return std::sqrt(sum / static_cast<double>(free_count)) / constant;
 }
@@ -253,7 +247,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     material.push_back(k * l0);
     rest_sum += l0;
   }
-  material_constant_n_ = springs.size() > 0 ? median(std::move(material)) : 1.0;
+  material_constant_n_ = springs.size() > 0 ? upperMedian(std::move(material)) : 1.0;
   mean_rest_length_ = springs.size() > 0 ? rest_sum / static_cast<double>(springs.size()) : 1.0;
 
   const double median_radius = system_.medianCollisionRadius();
