@@ -177,6 +177,8 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
   if (stopping.rule == StoppingRule::force_residual && !measuresForceResidual(simulation.solver_kind))
     p.fail("stopping_rule", "force_residual is measured by the block_descent and newton_krylov solvers only (solver is " +
                                 toString(simulation.solver_kind) + ")");
+  if (core.stream.auto_resolution && stopping.rule != StoppingRule::time_budget)
+    p.fail("auto_resolution", "fits the model to time_budget_ms: it needs stopping_rule time_budget");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
   if (simulation.solver_kind == SolverKind::local_global)

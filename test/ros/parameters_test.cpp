@@ -172,6 +172,12 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
   EXPECT_EQ(errorOf({{"solver", XmlRpc::XmlRpcValue(std::string("block_descent"))},
                      {"stopping_rule", XmlRpc::XmlRpcValue(std::string("force_residual"))}}),
             "");
+  EXPECT_EQ(errorOf({{"auto_resolution", XmlRpc::XmlRpcValue(true)},
+                     {"stopping_rule", XmlRpc::XmlRpcValue(std::string("iterations"))}}),
+            prefix + "auto_resolution fits the model to time_budget_ms: it needs stopping_rule time_budget");
+  EXPECT_EQ(errorOf({{"auto_resolution", XmlRpc::XmlRpcValue(true)}}), "");  // the default rule is time_budget
+  EXPECT_EQ(errorOf({{"auto_resolution", XmlRpc::XmlRpcValue(std::string("yes"))}}),
+            prefix + "auto_resolution has the wrong type");
   const std::string replaced = errorOf({{"reset_translation_m", XmlRpc::XmlRpcValue(0.1)}});
   EXPECT_EQ(replaced.rfind(prefix + "reset_translation_m no longer exists", 0), 0u) << replaced;
   EXPECT_NE(replaced.find("max_bone_speed_m_per_s"), std::string::npos) << replaced;
