@@ -163,6 +163,17 @@ class LengthTarget(unittest.TestCase):
         self.assertIn("**1 of 2** muscles meet it streamed", text)
         self.assertIn("No counterpart in gait2392: obturator.", text)
 
+    def test_the_fibres_folding_over_the_gait_is_stated_both_ways_and_is_no_muscle(self):
+        folding = {"fibre_folding": "worst frame", "folded_fibres_max": 12.0, "most_folded_muscle": "gracilis",
+                   "fibre_tortuosity_ratio_max": 1.42, "most_tortuous_muscle": "psoas",
+                   "converged_folded_fibres_max": 0.0, "converged_most_folded_muscle": "",
+                   "converged_fibre_tortuosity_ratio_max": None, "converged_most_tortuous_muscle": ""}
+        text = "\n".join(bench_report.lengths_section([length_row("a", 0.95, 40.0, 45.0), folding]))
+        self.assertIn("**1 of 1** muscles meet it streamed", text)
+        self.assertNotIn("No counterpart", text)
+        self.assertIn("streamed 12 fibres folded (gracilis), tortuosity at most x1.42 of rest (psoas)", text)
+        self.assertIn("converged no fibre folded, tortuosity not measured", text)
+
 
 class NodeOnTheGait(unittest.TestCase):
     def test_times_are_of_the_pose_frames_and_fidelity_of_every_frame_shown(self):
@@ -198,6 +209,21 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("still refining", text)
         self.assertNotIn("| case | what | recoveries", text)
         self.assertIn("| not measured |", text)
+
+    def test_each_case_says_whether_its_fibres_folded_and_an_older_run_says_nothing(self):
+        motion = {"case": "kick", "description": "kick", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.12,
+                  "strain_p99_max": 0.2, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1,
+                  "deepest_particle": "", "particle_volume_error_max_pct": 2.0, "settled_converged": 1.0,
+                  "folded_fibres_max": 3.0, "most_folded_muscle": "gracilis", "fibre_tortuosity_ratio_max": 1.25,
+                  "most_tortuous_muscle": "sartorius"}
+        straight = dict(motion, case="gait_1x", folded_fibres_max=0.0, most_folded_muscle="")
+        older = dict(motion, case="deep")
+        for key in ("folded_fibres_max", "most_folded_muscle", "fibre_tortuosity_ratio_max", "most_tortuous_muscle"):
+            del older[key]
+        text = "\n".join(accuracy_report.stability_section([straight, motion, older]))
+        self.assertIn("| 3 (gracilis) / x1.25 (sartorius) |", text)
+        self.assertIn("| none / x1.25 (sartorius) |", text)
+        self.assertTrue(any(line.startswith("| deep |") and line.endswith("| - |") for line in text.split("\n")))
 
     def test_a_motion_whose_converged_strain_exceeds_the_yardstick_is_named(self):
         gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,

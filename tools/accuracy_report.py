@@ -73,6 +73,16 @@ def _converged_strain(row):
             f"({int(row['converged_frames'])} of {int(row['reference_frames'])})")
 
 
+def _folding(row):
+    """Whether the fibres kept their line in the case's worst frame: fibres folded and tortuosity against rest."""
+    if "folded_fibres_max" not in row:
+        return "-"
+    folded = int(row["folded_fibres_max"])
+    ratio = row.get("fibre_tortuosity_ratio_max")
+    return ((f"{folded} ({row['most_folded_muscle']})" if folded else "none")
+            + (f" / x{ratio:.2f} ({row['most_tortuous_muscle']})" if ratio is not None else " / absent"))
+
+
 def stability_section(rows):
     motions = [row for row in rows if "strain_p99_median" in row]
     cases = [row for row in rows if row.get("case") != "pbd_femur_flexion" and "strain_p99_median" not in row]
@@ -82,13 +92,17 @@ def stability_section(rows):
              "(`config/muscle_deformation.yaml`; iterations per frame in the table). Every case is also a gtest on the synthetic scene (`core/test/stability_test.cpp`), where the "
              "recovered error is asserted against stated bounds. Divergence: three growing, direction-reversing steps "
              "above a quarter of the mean spring rest length; recovery restores the solve's start and halves dt "
-             "(kept for later frames). Raw numbers: `out/bench/stability.json`.", ""]
+             "(kept for later frames). *Fibres folded*: in the case's worst frame, the fibres that turn back on "
+             "themselves somewhere (two consecutive segments more than 90 degrees apart) where they did not at rest, "
+             "and the muscle with the most; *tortuosity x rest*: the largest fibre arc length over its end-to-end "
+             "distance, against the same at rest (1 = as straight as at rest), and its muscle. "
+             "Raw numbers: `out/bench/stability.json`.", ""]
     if cases:
         radius = cases[0].get("median_sphere_radius_mm", float("nan"))
         lines += ["| case | what | recoveries | gave up | finite | iterations | wall ms | dt at the end s | RMS to the "
                   "pre-transform mm | sphere penetration into bone mm | between muscles mm | particle centres in "
-                  "bone mm (deepest) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "bone mm (deepest) | fibres folded / tortuosity x rest |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cases:
             lines.append(f"| {row['case']} | {row.get('description', '')} | {int(row['recoveries'])} | "
                          f"{'yes' if row['diverged'] else 'no'} | {'yes' if row['finite'] else 'no'} | "
@@ -96,7 +110,8 @@ def stability_section(rows):
                          f"{row['rms_to_pretransform_mm']:.2f} | {row['max_penetration_sphere_bone_mm']:.2f} | "
                          f"{row['max_penetration_sphere_muscle_mm']:.2f} | "
                          f"{row.get('max_particle_inside_bone_mm', float('nan')):.2f}"
-                         f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} |")
+                         f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} | "
+                         f"{_folding(row)} |")
         deep = [row for row in cases if row["max_penetration_sphere_bone_mm"] > radius]
         names = {row["case"] for row in cases}
         notes = []
@@ -132,8 +147,8 @@ def stability_section(rows):
                   "| motion | what | finite | cold restarts | strain p99 median / worst frame | converged: strain p99 "
                   "median / worst frame (frames that met the criterion) | max strain | particle "
                   "centres in bone mm (deepest) | volume error max % | settled after held poses | after the hold: "
-                  "model volume error max % / strain p99 (held pose) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "model volume error max % / strain p99 (held pose) | fibres folded / tortuosity x rest |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in motions:
             settled = (f"{int(row['held_poses_until_settled'])} "
                        f"({'converged' if row['settled_converged'] else 'residual no longer falling'})"
@@ -143,7 +158,8 @@ def stability_section(rows):
                          f"{_converged_strain(row)} | "
                          f"{row['max_strain']:.1f} | {row['max_particle_inside_bone_mm']:.2f}"
                          f"{' (' + row['deepest_particle'] + ')' if row.get('deepest_particle') else ''} | "
-                         f"{row['particle_volume_error_max_pct']:.1f} | {settled} | {_after_hold(row)} |")
+                         f"{row['particle_volume_error_max_pct']:.1f} | {settled} | {_after_hold(row)} | "
+                         f"{_folding(row)} |")
         lines += [""]
         lines += _after_hold_lines(motions, gait)
         if gait:

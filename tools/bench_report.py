@@ -352,7 +352,8 @@ def length_target_misses(r, prefix=""):
 
 def lengths_section(rows):
     compared = [r for r in rows if "r" in r]
-    without = [r["muscle"] for r in rows if "r" not in r]
+    without = [r["muscle"] for r in rows if "r" not in r and "fibre_folding" not in r]
+    folding = next((r for r in rows if "fibre_folding" in r), None)
     meeting = [r for r in compared if not length_target_misses(r)]
     meeting_converged = [r for r in compared if not length_target_misses(r, "converged_")]
     lines = ["## Muscle lengths against gait2392", "",
@@ -377,8 +378,23 @@ def lengths_section(rows):
                      f"{r['mm_per_rad_reference_hip_flexion_r']:.0f} | {', '.join(misses) if misses else 'meets'} |")
     if without:
         lines += ["", "No counterpart in gait2392: " + ", ".join(without) + "."]
+    if folding:
+        lines += ["", "Whether the fibres kept their line, so that their arc length measures the muscle (the worst frame "
+                  "of all muscles; *folded*: a fibre turning back on itself somewhere, two consecutive segments more "
+                  "than 90 degrees apart, where it did not at rest; *tortuosity*: arc length over end-to-end distance "
+                  "against the same at rest): " + "; ".join(
+                      f"{label} {_folding_phrase(folding, prefix)}"
+                      for label, prefix in (("streamed", ""), ("converged", "converged_"))) + "."]
     lines += [""]
     return lines
+
+
+def _folding_phrase(row, prefix):
+    folded = int(row[prefix + "folded_fibres_max"])
+    ratio = row.get(prefix + "fibre_tortuosity_ratio_max")
+    return ((f"{folded} fibres folded ({row[prefix + 'most_folded_muscle']})" if folded else "no fibre folded")
+            + (f", tortuosity at most x{ratio:.2f} of rest ({row[prefix + 'most_tortuous_muscle']})"
+               if ratio is not None else ", tortuosity not measured"))
 
 
 # Each section: its name for --sections, the JSON it is made from, and how.

@@ -1,6 +1,7 @@
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 namespace muscle_deformation {
@@ -35,6 +36,61 @@ std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, con
     begin = i;
   }
   return fibres;
+}
+
+namespace {
+// Per point of the polyline, whether it turns back there (the segments before and after it more than 90 degrees
+// apart); false at the ends.
+std::vector<bool> turnsBack(const Eigen::Matrix3Xd& fibre) {
+  std::vector<bool> back(static_cast<std::size_t>(fibre.cols()), false);
+  for (Eigen::Index i = 1; i + 1 < fibre.cols(); ++i)
+    back[static_cast<std::size_t>(i)] = (fibre.col(i) - fibre.col(i - 1)).dot(fibre.col(i + 1) - fibre.col(i)) < 0;
+  return back;
+}
+
+double tortuosity(const Eigen::Matrix3Xd& fibre) {
+  double arc = 0;
+  for (Eigen::Index i = 1; i < fibre.cols(); ++i) arc += (fibre.col(i) - fibre.col(i - 1)).norm();
+  const double chord = (fibre.col(fibre.cols() - 1) - fibre.col(0)).norm();
+  return chord > 0 ? arc / chord : std::numeric_limits<double>::infinity();
+}
+}  // namespace
+
+FibreFolding measureFibreFolding(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
+  FibreFolding folding;
+  if (position.cols() != system.particleCount()) return folding;
+  const std::vector<Eigen::Matrix3Xd> rest = fibrePolylines(system, system.rest_position);
+  const std::vector<Eigen::Matrix3Xd> now = fibrePolylines(system, position);
+  std::vector<int> folded_per_muscle(static_cast<std::size_t>(system.muscleCount()), 0);
+  // fibrePolylines keeps particle order, so the first particle of each polyline names its muscle.
+  std::size_t f = 0;
+  for (Eigen::Index i = 0; i < system.particleCount() && f < now.size(); ++i) {
+    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) continue;
+    const bool starts = i == 0 || system.fibre_of[static_cast<std::size_t>(i)] != system.fibre_of[static_cast<std::size_t>(i - 1)] ||
+                        system.muscle_of[static_cast<std::size_t>(i)] != system.muscle_of[static_cast<std::size_t>(i - 1)];
+    if (!starts) continue;
+    const Eigen::Matrix3Xd& fibre = now[f];
+    const Eigen::Matrix3Xd& at_rest = rest[f];
+    ++f;
+    if (fibre.cols() < 2) continue;
+    const int muscle = system.muscle_of[static_cast<std::size_t>(i)];
+    ++folding.fibres;
+    const double ratio = tortuosity(fibre) / tortuosity(at_rest);
+    if (std::isnan(folding.worst_tortuosity_ratio) || ratio > folding.worst_tortuosity_ratio) {
+      folding.worst_tortuosity_ratio = ratio;
+      folding.worst_muscle = muscle;
+    }
+    const std::vector<bool> back = turnsBack(fibre), back_at_rest = turnsBack(at_rest);
+    for (std::size_t k = 0; k < back.size(); ++k)
+      if (back[k] && !back_at_rest[k]) {
+        ++folding.folded_fibres;
+        ++folded_per_muscle[static_cast<std::size_t>(muscle)];
+        break;
+      }
+  }
+  const auto most = std::max_element(folded_per_muscle.begin(), folded_per_muscle.end());
+  if (most != folded_per_muscle.end() && *most > 0) folding.most_folded_muscle = static_cast<int>(most - folded_per_muscle.begin());
+  return folding;
 }
 
 Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {

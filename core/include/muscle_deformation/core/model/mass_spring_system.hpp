@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -81,6 +82,21 @@ struct ParticleState {
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
 // anchors left out.
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
+
+// Whether the fibres keep their line: a fibre pushed shorter than its belly can follow buckles instead (a chain of
+// springs has no bending stiffness), and its arc length then no longer measures the muscle's length.
+struct FibreFolding {
+  int fibres = 0;  // of two particles or more
+  // Fibres that turn back on themselves somewhere (two consecutive segments more than 90 degrees apart) where they did
+  // not at rest.
+  int folded_fibres = 0;
+  // The largest, over fibres, of the fibre's tortuosity (arc length over end-to-end distance) divided by its rest
+  // tortuosity: 1 = as straight as at rest. NaN without fibres.
+  double worst_tortuosity_ratio = std::numeric_limits<double>::quiet_NaN();
+  int worst_muscle = -1;         // the muscle of that fibre
+  int most_folded_muscle = -1;   // the muscle with the most folded fibres, -1 when none folded
+};
+FibreFolding measureFibreFolding(const MassSpringSystem& system, const Eigen::Matrix3Xd& position);
 
 // The unit direction of each particle's fibre at `position`: from the particle before it on its fibre to the one after
 // it (one-sided at a fibre's ends); zero for tendon anchors, for a fibre of one particle, and everywhere when the
