@@ -234,7 +234,7 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
   const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(12));
-  for (const double relaxation_s : {0.0, 0.0005}) {  // quasi-static, and with the node's tissue drag and prediction
+  for (const double relaxation_s : {0.0, 0.0005}) {  // quasi-static, and with a tissue drag and prediction
     settings.block_descent.tissue_relaxation_s = relaxation_s;
     Eigen::Matrix3Xd positions[2];
     int contacts[2] = {0, 0};

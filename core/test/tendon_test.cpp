@@ -4,6 +4,7 @@
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
+#include "muscle_deformation/core/solvers/solve_control.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
@@ -123,6 +124,75 @@ TEST(Tendon, ABellyUnderPassiveTensionShortensWithItsPathWhereOneAtItsRestLength
   // The whole 14 cm path shortens by 14 mm; the stiff tendon passes it to the 10 cm belly when the belly is in tension.
   EXPECT_GE(tense, 0.09);
   EXPECT_LT(slack, 0.5 * tense);
+}
+
+TEST(Tendon, ABellySoftAcrossItsFibresShortensFurtherWithItsPathAtConstantVolume) {
+  const HangingScene scene = hangingMuscle();
+  const auto shortening = [&](double transverse_ratio) {
+    PipelineSettings s = settings(100.0);
+    s.simulation.model.fibre_prestretch = 0.2;
+    s.simulation.model.transverse_stiffness_ratio = transverse_ratio;
+    s.simulation.block_descent.volume_stiffness = 10.0;
+    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, s);
+    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+    const double at_rest_pose = meanBellyLength(pipeline);
+    pipeline.solve(apart(-0.10), StartMode::warm, kConverged, false, false);  // the bones 10 % closer
+    return 1.0 - meanBellyLength(pipeline) / at_rest_pose;
+  };
+  const double isotropic = shortening(1.0), transverse = shortening(0.05);
+  std::printf("bones 10 %% closer, volume kept: belly shortened %.1f %% with isotropic springs, %.1f %% with springs "
+              "across its fibres 1/20 as stiff\n", 100 * isotropic, 100 * transverse);
+  // Shortening at constant volume thickens the belly, which its springs across the fibres resist.
+  EXPECT_GT(transverse, isotropic + 0.01);
+  EXPECT_GE(transverse, 0.09);
+}
+
+TEST(Tendon, SpringsAcrossTheFibresTakeTheTransverseShareOfTheStiffnessAndThoseAlongThemAllOfIt) {
+  const HangingScene scene = hangingMuscle();
+  ModelSettings s = settings(10.0).simulation.model;
+  s.transverse_stiffness_ratio = 0.05;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, s);
+  int along = 0, across = 0;
+  for (std::size_t k = 0; k < system.springs.size(); ++k) {
+    const std::int32_t a = system.springs.first[k], b = system.springs.second[k];
+    if (system.fibre_of[static_cast<std::size_t>(a)] == kTendonAnchor || system.fibre_of[static_cast<std::size_t>(b)] == kTendonAnchor)
+      continue;
+    const auto spring = static_cast<Eigen::Index>(k);
+    const Eigen::Vector3d d = system.rest_position.col(b) - system.rest_position.col(a);
+    const double alignment = d.z() / d.norm();  // the fibres run along z
+    const double expected = s.spring_material_n / system.springs.rest_length[spring] *
+                            (alignment * alignment + 0.05 * (1 - alignment * alignment));
+    EXPECT_NEAR(system.springs.stiffness[spring], expected, 1e-9 * expected) << "spring " << k;
+    along += std::abs(alignment) > 0.999;
+    across += std::abs(alignment) < 0.001;
+  }
+  EXPECT_GT(along, 0);
+  EXPECT_GT(across, 0);
+}
+
+TEST(Tendon, ATransverseStiffnessRatioOutsideZeroToOneIsRefused) {
+  ModelSettings s;
+  for (const double bad : {0.0, -0.1, 1.5, std::nan("")}) {
+    s.transverse_stiffness_ratio = bad;
+    EXPECT_NE(validate(s).find("transverse_stiffness_ratio"), std::string::npos) << bad;
+  }
+  s.transverse_stiffness_ratio = 0.05;
+  EXPECT_TRUE(validate(s).empty());
+}
+
+TEST(Tendon, APreTensionedBellyInItsSegmentedShapeHasNoStrainThoughItsSpringsRestShorter) {
+  const HangingScene scene = hangingMuscle();
+  ModelSettings s = settings(10.0).simulation.model;
+  s.fibre_prestretch = 0.2;
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, s);
+  const SpringMetrics at_rest = measureSprings(system.springs, system.rest_position);
+  EXPECT_NEAR(at_rest.max_strain, 0.0, 1e-12);
+  // The springs along the fibres rest a fifth shorter; stretched 10 % along the fibres, those show 10 % strain.
+  ASSERT_EQ(system.springs.prestretch_factor.size(), static_cast<Eigen::Index>(system.springs.size()));
+  EXPECT_NEAR(system.springs.prestretch_factor.minCoeff(), 0.8, 1e-9);
+  Eigen::Matrix3Xd stretched = system.rest_position;
+  stretched.row(2) *= 1.1;
+  EXPECT_NEAR(measureSprings(system.springs, stretched).max_strain, 0.1, 1e-9);
 }
 
 TEST(Tendon, APrestretchOutsideZeroToAHalfIsRefused) {

@@ -30,6 +30,8 @@ std::string validate(const ModelSettings& s) {
     return "density_kg_per_m3 must be a finite value > 0";
   if (!(s.fibre_prestretch >= 0 && s.fibre_prestretch <= 0.5))
     return "fibre_prestretch must be in [0, 0.5]";
+  if (!(s.transverse_stiffness_ratio > 0 && s.transverse_stiffness_ratio <= 1))
+    return "transverse_stiffness_ratio must be in (0, 1]";
   if (!(s.tendon_stiffness_ratio > 0) || !std::isfinite(s.tendon_stiffness_ratio))
     return "tendon_stiffness_ratio must be a finite value > 0";
   if (!(s.boundary_fibre_fraction >= 0 && s.boundary_fibre_fraction <= 1))
@@ -301,22 +303,45 @@ struct PendingTendon {
   std::vector<std::pair<int, Eigen::Vector3d>> path;
 };
 
-// The belly's springs get a rest length shorter by `prestretch` x the square of their alignment with the fibres (the
-// local direction of the fibres at their two particles): at its segmented length the belly is under passive tension
-// along its fibres, as muscle in the body is, so that when a joint lets its tendon go it shortens instead of going
-// slack. Stiffness stays that of the segmented length. Tendons and springs of tendon anchors are left as they are.
-void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
+// Per spring, the cosine of its angle with the fibres' local direction at its two particles at rest; NaN for a spring
+// that is not the belly's (a tendon or a tendon anchor's) or has no direction.
+std::vector<double> fibreAlignments(const MassSpringSystem& system) {
   const auto on_fibre = [&](Eigen::Index i) { return system.fibre_of[static_cast<std::size_t>(i)] != kTendonAnchor; };
   const Eigen::Matrix3Xd direction = fibreDirections(system, system.rest_position);
+  std::vector<double> alignment(system.springs.size(), std::numeric_limits<double>::quiet_NaN());
   for (std::size_t s = 0; s < system.springs.size(); ++s) {
     const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
     if (!on_fibre(a) || !on_fibre(b)) continue;
     Eigen::Vector3d fibre = direction.col(a) + (direction.col(a).dot(direction.col(b)) < 0 ? -1.0 : 1.0) * direction.col(b);
     const Eigen::Vector3d spring = system.rest_position.col(b) - system.rest_position.col(a);
     if (!(fibre.norm() > 0) || !(spring.norm() > 0)) continue;
-    const double alignment = fibre.normalized().dot(spring.normalized());
-    system.springs.rest_length[static_cast<Eigen::Index>(s)] *= 1.0 - prestretch * alignment * alignment;
+    alignment[s] = fibre.normalized().dot(spring.normalized());
   }
+  return alignment;
+}
+
+// The belly's springs get a rest length shorter by `prestretch` x the square of their alignment with the fibres (the
+// local direction of the fibres at their two particles): at its segmented length the belly is under passive tension
+// along its fibres, as muscle in the body is, so that when a joint lets its tendon go it shortens instead of going
+// slack. Stiffness stays that of the segmented length. Tendons and springs of tendon anchors are left as they are.
+void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
+  const std::vector<double> alignment = fibreAlignments(system);
+  system.springs.prestretch_factor.setOnes(static_cast<Eigen::Index>(system.springs.size()));
+  for (std::size_t s = 0; s < system.springs.size(); ++s)
+    if (!std::isnan(alignment[s])) {
+      const double factor = 1.0 - prestretch * alignment[s] * alignment[s];
+      system.springs.rest_length[static_cast<Eigen::Index>(s)] *= factor;
+      system.springs.prestretch_factor[static_cast<Eigen::Index>(s)] = factor;
+    }
+}
+
+// The belly's springs across its fibres get `ratio` of their stiffness, those along them keep it, in between by the
+// square of their alignment: the transverse isotropy of passive muscle.
+void softenAcrossFibres(MassSpringSystem& system, double ratio) {
+  const std::vector<double> alignment = fibreAlignments(system);
+  for (std::size_t s = 0; s < system.springs.size(); ++s)
+    if (!std::isnan(alignment[s]))
+      system.springs.stiffness[static_cast<Eigen::Index>(s)] *= alignment[s] * alignment[s] + ratio * (1.0 - alignment[s] * alignment[s]);
 }
 
 // Inserts each tendon's anchor, a particle fixed to the bone at the bone vertex nearest the fibre end, after its
@@ -711,6 +736,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
   for (const auto& [spring, stiffness] : tendon_stiffness) system.springs.stiffness[spring] = stiffness;
+  if (settings.transverse_stiffness_ratio < 1) softenAcrossFibres(system, settings.transverse_stiffness_ratio);
   if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, settings.fibre_prestretch);
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);

@@ -74,6 +74,10 @@ std::vector<SettingSpec> buildTable() {
              "the belly's passive tension at its segmented length: its springs rest shorter by this share along the "
              "fibres, so that it shortens with its path when a joint lets its tendon go instead of going slack",
              [model](CoreSettings& s) -> double& { return model(s).fibre_prestretch; }),
+      number("transverse_stiffness_ratio", "", 1e-3, 1.0,
+             "the belly's stiffness across its fibres relative to along them (passive muscle's is about 1/20), so that "
+             "it thickens cheaply as it shortens at constant volume; 1 = isotropic springs",
+             [model](CoreSettings& s) -> double& { return model(s).transverse_stiffness_ratio; }),
       number("spring_material_n", "N", 1e-9, 1e9, "spring stiffness is this divided by the rest length",
              [model](CoreSettings& s) -> double& { return model(s).spring_material_n; }),
       number("density_kg_per_m3", "kg/m^3", 1e-6, 1e6, "muscle density, for the particle masses",

@@ -22,6 +22,10 @@ struct SpringSet {
   std::vector<std::int32_t> second;  // particle index, != first
   Eigen::VectorXd rest_length;       // metres
   Eigen::VectorXd stiffness;         // N/m  (material constant / rest length)
+  // Per spring, its rest length over its length in the segmented shape (1 - fibre_prestretch a^2 for the belly's
+  // springs under passive tension, ModelSettings::fibre_prestretch); empty: 1 for every spring. Strain is measured
+  // against the shape, so that a belly's pre-tension is not counted as deformation.
+  Eigen::VectorXd prestretch_factor;
 
   std::size_t size() const { return first.size(); }
 };

@@ -41,6 +41,12 @@ struct ModelSettings {
   // (0 = the segmented length is the rest length, the seeds' model). A belly at rest length goes slack when a joint
   // shortens its path; one under tension shortens with it.
   double fibre_prestretch = 0.0;
+  // The belly's stiffness across its fibres relative to along them: a spring's stiffness is material / rest length x
+  // (a^2 + ratio (1 - a^2)), a its alignment with the fibres. Passive muscle is transversely isotropic, its tensile
+  // modulus across the fibres about 1/20 of that along them (22 against 447 kPa, Morrow et al. 2010, J Mech Behav
+  // Biomed Mater 3:124); 1 = the seeds' isotropic springs. A belly soft across its fibres thickens cheaply, so that it
+  // can shorten at constant volume.
+  double transverse_stiffness_ratio = 1.0;
   double spring_material_n = 10.0;         // stiffness = material constant / rest length (N / m)
   double density_kg_per_m3 = 1060.0;       // skeletal muscle; particle mass = density * volume / particles
   double boundary_fibre_fraction = 0.3;    // share of a fibre's 16 probe points (spread along it) that must be the

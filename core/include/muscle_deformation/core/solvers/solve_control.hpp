@@ -186,6 +186,8 @@ inline bool solveLimitReached(const SolveLimits& limits, double elapsed_ms, Solv
   return false;
 }
 
+// Spring figures against each spring's length in the segmented shape (l0 below: its rest length, or for a belly under
+// passive tension the length it rests longer than, SpringSet::prestretch_factor).
 struct SpringMetrics {
   double deviation_ratio = 0, mean_strain = 0, max_strain = 0, strain_p99 = 0;
 };
