@@ -9,6 +9,8 @@
 // the 1-cycle bag was made from).
 #pragma once
 
+#include "worst_folding.hpp"
+
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/scene/motion_file.hpp"
@@ -32,12 +34,8 @@ namespace bench {
 // Per muscle and frame (m): the mean belly length of its fibres and the mean belly + tendon length.
 struct MuscleLengths {
   std::vector<std::vector<double>> belly, whole;  // [muscle][frame]
-  // Whether the fibres kept their line (an arc length measures a muscle's length only then), the worst frame:
-  // muscle_deformation::measureFibreFolding's folded fibres and tortuosity against rest, with their muscles.
-  int folded_fibres_max = 0;
-  std::string most_folded_muscle;
-  double tortuosity_ratio_max = std::nan("");
-  std::string most_tortuous_muscle;
+  // Whether the fibres kept their line (an arc length measures a muscle's length only then), the worst frame.
+  WorstFolding folding;
 };
 
 // Appends the lengths of the pipeline's current state as one more frame.
@@ -46,15 +44,7 @@ inline void addLengthsOf(const muscle_deformation::DeformationPipeline& pipeline
   const MassSpringSystem& system = pipeline.system();
   const Eigen::Matrix3Xd& x = pipeline.state().position;
   const int muscles = system.muscleCount();
-  const FibreFolding folding = measureFibreFolding(system, x);
-  if (folding.folded_fibres > lengths.folded_fibres_max) {
-    lengths.folded_fibres_max = folding.folded_fibres;
-    lengths.most_folded_muscle = system.muscle_name[static_cast<std::size_t>(folding.most_folded_muscle)];
-  }
-  if (folding.worst_muscle >= 0 && !(folding.worst_tortuosity_ratio <= lengths.tortuosity_ratio_max)) {
-    lengths.tortuosity_ratio_max = folding.worst_tortuosity_ratio;
-    lengths.most_tortuous_muscle = system.muscle_name[static_cast<std::size_t>(folding.worst_muscle)];
-  }
+  lengths.folding.measure(system, x);
   if (lengths.belly.empty()) {
     lengths.belly.resize(static_cast<std::size_t>(muscles));
     lengths.whole.resize(static_cast<std::size_t>(muscles));

@@ -134,14 +134,11 @@ int main(int argc, char** argv) {
   records.add("fibre_folding", std::string("1-cycle gait, all muscles, worst frame"));
   for (const auto& [label, lengths] : {std::pair<std::string, const bench::MuscleLengths*>{"", &stream_lengths},
                                        std::pair<std::string, const bench::MuscleLengths*>{"converged_", &converged_lengths}}) {
-    records.add(label + "folded_fibres_max", lengths->folded_fibres_max);
-    records.add(label + "most_folded_muscle", lengths->most_folded_muscle);
-    records.addMeasured(label + "fibre_tortuosity_ratio_max", lengths->tortuosity_ratio_max);
-    records.add(label + "most_tortuous_muscle", lengths->most_tortuous_muscle);
+    lengths->folding.record(records, label);
     std::printf("  %s: %d fibres folded at most (%s), tortuosity x%.2f of rest at most (%s)\n",
-                label.empty() ? "stream" : "converged", lengths->folded_fibres_max,
-                lengths->most_folded_muscle.empty() ? "none" : lengths->most_folded_muscle.c_str(),
-                lengths->tortuosity_ratio_max, lengths->most_tortuous_muscle.c_str());
+                label.empty() ? "stream" : "converged", lengths->folding.folded_fibres_max,
+                lengths->folding.most_folded_muscle.empty() ? "none" : lengths->folding.most_folded_muscle.c_str(),
+                lengths->folding.tortuosity_ratio_max, lengths->folding.most_tortuous_muscle.c_str());
   }
   records.end();
   return bench::finish(records, options, "lengths.json");

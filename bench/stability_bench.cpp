@@ -9,6 +9,7 @@
 #include "convergence_run.hpp"
 #include "node_defaults.hpp"
 #include "stream_play.hpp"
+#include "worst_folding.hpp"
 
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
@@ -73,30 +74,8 @@ struct Outcome {
   // measured after every frame, whatever the proxy the contacts use.
   double max_particle_depth_m = 0;
   std::string deepest_particle;  // "muscle in bone"
-  // Whether the fibres kept their line (measureFibreFolding), the worst frame: the most fibres folded and the largest
-  // tortuosity against rest, with their muscles (empty: none).
-  int folded_fibres_max = 0;
-  std::string most_folded_muscle;
-  double tortuosity_ratio_max = std::nan("");
-  std::string most_tortuous_muscle;
+  bench::WorstFolding folding;  // whether the fibres kept their line, the worst frame
   std::unique_ptr<DeformationMetrics> metrics;
-
-  void addFolding(const MassSpringSystem& system, const FibreFolding& folding) {
-    if (folding.folded_fibres > folded_fibres_max) {
-      folded_fibres_max = folding.folded_fibres;
-      most_folded_muscle = system.muscle_name[static_cast<std::size_t>(folding.most_folded_muscle)];
-    }
-    if (folding.worst_muscle >= 0 && !(folding.worst_tortuosity_ratio <= tortuosity_ratio_max)) {
-      tortuosity_ratio_max = folding.worst_tortuosity_ratio;
-      most_tortuous_muscle = system.muscle_name[static_cast<std::size_t>(folding.worst_muscle)];
-    }
-  }
-  void record(bench::JsonRecords& records) const {
-    records.add("folded_fibres_max", folded_fibres_max);
-    records.add("most_folded_muscle", most_folded_muscle);
-    records.addMeasured("fibre_tortuosity_ratio_max", tortuosity_ratio_max);
-    records.add("most_tortuous_muscle", most_tortuous_muscle);
-  }
 };
 
 void accumulate(Outcome& outcome, const DeformationPipeline& simulation, const FrameStats& stats) {
@@ -105,7 +84,7 @@ void accumulate(Outcome& outcome, const DeformationPipeline& simulation, const F
   outcome.finite = outcome.finite && stats.finite && simulation.state().position.allFinite() && statsFinite(stats);
   for (const Eigen::Matrix3Xd& fibre : fibrePolylines(simulation.system(), simulation.state().position))
     outcome.finite = outcome.finite && fibre.allFinite();
-  outcome.addFolding(simulation.system(), measureFibreFolding(simulation.system(), simulation.state().position));
+  outcome.folding.measure(simulation.system(), simulation.state().position);
   outcome.iterations += stats.solver.iterations;
   outcome.wall_ms += stats.solver.total_ms;
   outcome.time_step_s = stats.solver.time_step_s;
@@ -145,7 +124,7 @@ class Report {
     records_.add("max_particle_inside_bone_mm", outcome.max_particle_depth_m * 1e3);
     records_.add("deepest_particle", outcome.deepest_particle);
     records_.add("particle_volume_error_max_pct", volume_error_pct);  // tetrahedra over the particles
-    outcome.record(records_);
+    outcome.folding.record(records_);
     records_.end();
     std::printf("[%6.1f s] %-22s recoveries %d%s, %s, %d iterations, %.0f ms, RMS to pre-transform %.2f mm, "
                 "bone penetration %.2f mm, particles in bone %.2f mm (%s), particle-volume error max %.2f %%\n",
@@ -407,7 +386,7 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   records.addMeasured("after_hold_volume_error_max_pct", figures.after_hold_volume_error_max_pct);
   records.addMeasured("after_hold_strain_p99", figures.after_hold_strain_p99);
   records.addMeasured("converged_last_strain_p99", converged.last_p99);
-  outcome.record(records);
+  outcome.folding.record(records);
   records.end();
   std::printf("[%6.1f s] %-22s after the hold (held pose %d, within %d): model volume error max %.3f %%, strain p99 "
               "%.3f (the held pose converged: %.3f)\n",
@@ -558,7 +537,7 @@ int main(int argc, char** argv) {
     records.add("median_sphere_radius_mm", system.medianCollisionRadius() * 1e3);
     records.add("gluteus_end_rms_to_start_mm", end_rms_mm);
     records.add("gluteus_peak_rms_to_start_mm", peak_rms_mm);
-    outcome.record(records);
+    outcome.folding.record(records);
     records.add("max_penetration_sphere_bone_mm", outcome.max_penetration_bone_m * 1e3);
     records.add("max_penetration_sphere_muscle_mm", outcome.max_penetration_muscle_m * 1e3);
     records.add("max_particle_inside_bone_mm", outcome.max_particle_depth_m * 1e3);

@@ -75,6 +75,15 @@ BoneTransforms apart(double share) {
 
 const FrameStopping kConverged = FrameStopping::of(StoppingSettings::atResidual(1e-7, 50000));
 
+// The share by which the belly shortens, each pose solved to convergence, when the bones come 10 % closer.
+double bellyShorteningWithBonesTenPercentCloser(const HangingScene& scene, const PipelineSettings& settings) {
+  DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, settings);
+  pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+  const double at_rest_pose = meanBellyLength(pipeline);
+  pipeline.solve(apart(-0.10), StartMode::warm, kConverged, false, false);
+  return 1.0 - meanBellyLength(pipeline) / at_rest_pose;
+}
+
 }  // namespace
 
 TEST(Tendon, AFibreEndAwayFromItsBoneHangsFromTheInsertionSiteNotTheBonesNearestPoint) {
@@ -112,11 +121,7 @@ TEST(Tendon, ABellyUnderPassiveTensionShortensWithItsPathWhereOneAtItsRestLength
   const auto shortening = [&](double prestretch) {
     PipelineSettings s = settings(100.0);
     s.simulation.model.fibre_prestretch = prestretch;
-    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, s);
-    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
-    const double at_rest_pose = meanBellyLength(pipeline);
-    pipeline.solve(apart(-0.10), StartMode::warm, kConverged, false, false);  // the bones 10 % closer
-    return 1.0 - meanBellyLength(pipeline) / at_rest_pose;
+    return bellyShorteningWithBonesTenPercentCloser(scene, s);
   };
   const double slack = shortening(0.0), tense = shortening(0.2);
   std::printf("bones 10 %% closer: belly shortened %.1f %% at its rest length, %.1f %% pre-stretched by 20 %%\n",
@@ -133,11 +138,7 @@ TEST(Tendon, ABellySoftAcrossItsFibresShortensFurtherWithItsPathAtConstantVolume
     s.simulation.model.fibre_prestretch = 0.2;
     s.simulation.model.transverse_stiffness_ratio = transverse_ratio;
     s.simulation.block_descent.volume_stiffness = 10.0;
-    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, s);
-    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
-    const double at_rest_pose = meanBellyLength(pipeline);
-    pipeline.solve(apart(-0.10), StartMode::warm, kConverged, false, false);  // the bones 10 % closer
-    return 1.0 - meanBellyLength(pipeline) / at_rest_pose;
+    return bellyShorteningWithBonesTenPercentCloser(scene, s);
   };
   const double isotropic = shortening(1.0), transverse = shortening(0.05);
   std::printf("bones 10 %% closer, volume kept: belly shortened %.1f %% with isotropic springs, %.1f %% with springs "

@@ -1,7 +1,10 @@
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
+
 #include <algorithm>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 namespace muscle_deformation {
@@ -18,37 +21,34 @@ double MassSpringSystem::medianCollisionRadius() const {
   std::vector<double> radii;
   for (Eigen::Index i = 0; i < radius.size(); ++i)
     if (radius[i] > 0) radii.push_back(radius[i]);
-  if (radii.empty()) return 0;
-  const auto middle = radii.begin() + static_cast<std::ptrdiff_t>(radii.size() / 2);
-  std::nth_element(radii.begin(), middle, radii.end());
-  return *middle;
+  return radii.empty() ? 0.0 : upperMedian(std::move(radii));
 }
 
-std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
-  // Particles of one fibre are stored consecutively, in order from the fibre start.
-  std::vector<Eigen::Matrix3Xd> fibres;
+namespace {
+// Calls visit(begin, count) for each fibre's particles in order (particles of one fibre are stored consecutively, from
+// the fibre start), tendon anchors left out.
+template <class Visit>
+void forEachFibre(const MassSpringSystem& system, Visit&& visit) {
   Eigen::Index begin = 0;
   for (Eigen::Index i = 1; i <= system.particleCount(); ++i) {
     const bool fibre_ends = i == system.particleCount() || system.fibre_of[i] != system.fibre_of[i - 1] ||
                             system.muscle_of[i] != system.muscle_of[i - 1];
     if (!fibre_ends) continue;
-    if (system.fibre_of[begin] != kTendonAnchor) fibres.push_back(position.middleCols(begin, i - begin));
+    if (system.fibre_of[begin] != kTendonAnchor) visit(begin, i - begin);
     begin = i;
   }
-  return fibres;
 }
 
-namespace {
 // Per point of the polyline, whether it turns back there (the segments before and after it more than 90 degrees
 // apart); false at the ends.
-std::vector<bool> turnsBack(const Eigen::Matrix3Xd& fibre) {
+std::vector<bool> turnsBack(const Eigen::Ref<const Eigen::Matrix3Xd>& fibre) {
   std::vector<bool> back(static_cast<std::size_t>(fibre.cols()), false);
   for (Eigen::Index i = 1; i + 1 < fibre.cols(); ++i)
     back[static_cast<std::size_t>(i)] = (fibre.col(i) - fibre.col(i - 1)).dot(fibre.col(i + 1) - fibre.col(i)) < 0;
   return back;
 }
 
-double tortuosity(const Eigen::Matrix3Xd& fibre) {
+double tortuosity(const Eigen::Ref<const Eigen::Matrix3Xd>& fibre) {
   double arc = 0;
   for (Eigen::Index i = 1; i < fibre.cols(); ++i) arc += (fibre.col(i) - fibre.col(i - 1)).norm();
   const double chord = (fibre.col(fibre.cols() - 1) - fibre.col(0)).norm();
@@ -56,24 +56,21 @@ double tortuosity(const Eigen::Matrix3Xd& fibre) {
 }
 }  // namespace
 
+std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
+  std::vector<Eigen::Matrix3Xd> fibres;
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) { fibres.push_back(position.middleCols(begin, count)); });
+  return fibres;
+}
+
 FibreFolding measureFibreFolding(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
   FibreFolding folding;
   if (position.cols() != system.particleCount()) return folding;
-  const std::vector<Eigen::Matrix3Xd> rest = fibrePolylines(system, system.rest_position);
-  const std::vector<Eigen::Matrix3Xd> now = fibrePolylines(system, position);
   std::vector<int> folded_per_muscle(static_cast<std::size_t>(system.muscleCount()), 0);
-  // fibrePolylines keeps particle order, so the first particle of each polyline names its muscle.
-  std::size_t f = 0;
-  for (Eigen::Index i = 0; i < system.particleCount() && f < now.size(); ++i) {
-    if (system.fibre_of[static_cast<std::size_t>(i)] == kTendonAnchor) continue;
-    const bool starts = i == 0 || system.fibre_of[static_cast<std::size_t>(i)] != system.fibre_of[static_cast<std::size_t>(i - 1)] ||
-                        system.muscle_of[static_cast<std::size_t>(i)] != system.muscle_of[static_cast<std::size_t>(i - 1)];
-    if (!starts) continue;
-    const Eigen::Matrix3Xd& fibre = now[f];
-    const Eigen::Matrix3Xd& at_rest = rest[f];
-    ++f;
-    if (fibre.cols() < 2) continue;
-    const int muscle = system.muscle_of[static_cast<std::size_t>(i)];
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+    if (count < 2) return;
+    const auto fibre = position.middleCols(begin, count);
+    const auto at_rest = system.rest_position.middleCols(begin, count);
+    const int muscle = system.muscle_of[static_cast<std::size_t>(begin)];
     ++folding.fibres;
     const double ratio = tortuosity(fibre) / tortuosity(at_rest);
     if (std::isnan(folding.worst_tortuosity_ratio) || ratio > folding.worst_tortuosity_ratio) {
@@ -85,9 +82,9 @@ FibreFolding measureFibreFolding(const MassSpringSystem& system, const Eigen::Ma
       if (back[k] && !back_at_rest[k]) {
         ++folding.folded_fibres;
         ++folded_per_muscle[static_cast<std::size_t>(muscle)];
-        break;
+        return;
       }
-  }
+  });
   const auto most = std::max_element(folded_per_muscle.begin(), folded_per_muscle.end());
   if (most != folded_per_muscle.end() && *most > 0) folding.most_folded_muscle = static_cast<int>(most - folded_per_muscle.begin());
   return folding;

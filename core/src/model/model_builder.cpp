@@ -324,8 +324,7 @@ std::vector<double> fibreAlignments(const MassSpringSystem& system) {
 // local direction of the fibres at their two particles): at its segmented length the belly is under passive tension
 // along its fibres, as muscle in the body is, so that when a joint lets its tendon go it shortens instead of going
 // slack. Stiffness stays that of the segmented length. Tendons and springs of tendon anchors are left as they are.
-void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
-  const std::vector<double> alignment = fibreAlignments(system);
+void prestretchAlongFibres(MassSpringSystem& system, const std::vector<double>& alignment, double prestretch) {
   system.springs.prestretch_factor.setOnes(static_cast<Eigen::Index>(system.springs.size()));
   for (std::size_t s = 0; s < system.springs.size(); ++s)
     if (!std::isnan(alignment[s])) {
@@ -337,8 +336,7 @@ void prestretchAlongFibres(MassSpringSystem& system, double prestretch) {
 
 // The belly's springs across its fibres get `ratio` of their stiffness, those along them keep it, in between by the
 // square of their alignment: the transverse isotropy of passive muscle.
-void softenAcrossFibres(MassSpringSystem& system, double ratio) {
-  const std::vector<double> alignment = fibreAlignments(system);
+void softenAcrossFibres(MassSpringSystem& system, const std::vector<double>& alignment, double ratio) {
   for (std::size_t s = 0; s < system.springs.size(); ++s)
     if (!std::isnan(alignment[s]))
       system.springs.stiffness[static_cast<Eigen::Index>(s)] *= alignment[s] * alignment[s] + ratio * (1.0 - alignment[s] * alignment[s]);
@@ -736,8 +734,11 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
   for (const auto& [spring, stiffness] : tendon_stiffness) system.springs.stiffness[spring] = stiffness;
-  if (settings.transverse_stiffness_ratio < 1) softenAcrossFibres(system, settings.transverse_stiffness_ratio);
-  if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, settings.fibre_prestretch);
+  if (settings.transverse_stiffness_ratio < 1 || settings.fibre_prestretch > 0) {
+    const std::vector<double> alignment = fibreAlignments(system);
+    if (settings.transverse_stiffness_ratio < 1) softenAcrossFibres(system, alignment, settings.transverse_stiffness_ratio);
+    if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, alignment, settings.fibre_prestretch);
+  }
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);
   for (std::size_t m = 0; m < radii.size() && m < out.muscles.size(); ++m) out.muscles[m].mean_radius_m = radii[m].mean_radius_m;
