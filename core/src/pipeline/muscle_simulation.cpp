@@ -36,6 +36,22 @@ void addSweepToFrame(const SolveStats& sweep, SolveStats& frame) {
   frame.time_limit_reached = frame.time_limit_reached || sweep.time_limit_reached;
 }
 
+// Per particle, the part of the correction's latest change `change` that the change before it (`before`) confirms: its
+// projection on `change`, kept within [0, 1] of it. A drift the motion drives keeps its direction from frame to
+// frame and is carried on whole; an alternation of the sweeps' own (a mode a sweep overshoots, which flips sign every
+// frame; the volume term, which couples all of a muscle's particles, makes them) is not carried on at all.
+// Extrapolating such an alternation fed it back into the next start and made it grow while the skeleton held still
+// (thigh13 with a recording's jitter, one sweep a frame: the residual from 3e-4 to about 1 within 200 frames).
+Eigen::Matrix3Xd confirmedTrend(const Eigen::Matrix3Xd& change, const Eigen::Matrix3Xd& before) {
+  Eigen::Matrix3Xd confirmed(3, change.cols());
+  for (Eigen::Index i = 0; i < change.cols(); ++i) {
+    const double squared = change.col(i).squaredNorm();
+    const double share = squared > 0 ? std::clamp(change.col(i).dot(before.col(i)) / squared, 0.0, 1.0) : 0.0;
+    confirmed.col(i) = share * change.col(i);
+  }
+  return confirmed;
+}
+
 }  // namespace
 
 std::string validate(const StartPrediction& prediction) {
@@ -107,6 +123,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   state_.previous_position = position;
   correction_.setZero(3, position.cols());
   previous_correction_.resize(3, 0);
+  previous_correction_change_.resize(3, 0);
   previous_transforms_ = transforms;
   has_previous_ = true;
 }
@@ -196,8 +213,9 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     // The previous answer plus its correction, moved with the bones like the answer itself.
     predicted.position = state_.position + correction_;
     const double extrapolation = settings_.prediction.predict_extrapolation;
-    if (extrapolation > 0 && previous_correction_.cols() == correction_.cols())
-      predicted.position += extrapolation * (correction_ - previous_correction_);
+    if (extrapolation > 0 && previous_correction_.cols() == correction_.cols() &&
+        previous_correction_change_.cols() == correction_.cols())
+      predicted.position += extrapolation * confirmedTrend(correction_ - previous_correction_, previous_correction_change_);
     warmStart(system_, previous_transforms_, transforms, predicted);
   }
   if (stats.warm_started)
@@ -354,13 +372,20 @@ void MuscleSimulation::finishFrame(const BoneTransforms& transforms, bool drag, 
   if (drag && last_frame_warm_) {
     // After a refinement the change of the correction is the refinement's, not a drift of the motion that the next
     // frame could extrapolate: the next frame carries the correction on without extrapolating.
-    if (refinement)
+    if (refinement) {
       previous_correction_.resize(3, 0);
-    else
+      previous_correction_change_.resize(3, 0);
+    } else {
+      if (previous_correction_.cols() == correction_.cols())
+        previous_correction_change_ = correction_ - previous_correction_;
+      else
+        previous_correction_change_.resize(3, 0);
       previous_correction_ = std::move(correction_);
+    }
     correction_ = state_.position - state_.carried_position;  // zero for fixed particles: both follow their bone
   } else {
     previous_correction_.resize(3, 0);  // nothing to extrapolate from after a cold start
+    previous_correction_change_.resize(3, 0);
     correction_.setZero(3, system_.particleCount());
   }
 }

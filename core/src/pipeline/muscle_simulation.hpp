@@ -107,6 +107,9 @@ class MuscleSimulation {
   // The correction of the frame before (for StartPrediction::predict_extrapolation), empty when that frame did not
   // continue a warm one.
   Eigen::Matrix3Xd previous_correction_;
+  // That frame's change of the correction (the one before the latest), empty when unknown: what the extrapolation's
+  // trend must be confirmed by.
+  Eigen::Matrix3Xd previous_correction_change_;
   BoneTransforms previous_transforms_;
   bool has_previous_ = false;
   bool last_frame_warm_ = false;  // the last frame continued a warm one (its correction is carried on)

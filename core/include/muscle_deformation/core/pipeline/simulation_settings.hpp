@@ -23,9 +23,11 @@ struct StartPrediction {
   // next one's, so the sweeps start near the answer.
   bool predict_start = true;
   // How much of the correction's change over the last frame the predicted start carries on besides the correction
-  // itself: y + c_n + e (c_n - c_(n-1)). 0.5, measured on the bundled gait with one sweep a frame: 0.54 instead of
-  // 0.73 mm RMS from the converged stream of all 26 muscles over a cycle, 0.92 instead of 1.35 mm over three cycles of
-  // thigh13; 1 (straight linear extrapolation) fed its own error back and diverged.
+  // itself: y + c_n + e d, where d is, per particle, the part of c_n - c_(n-1) that the change before it confirms (its
+  // projection on it, within 0 and 1 of it), so that the sweeps' own alternation is not fed back (held still it grew
+  // without that). 0.5, measured on the bundled gait with one sweep a frame: 1.93 instead of 2.47 mm RMS from the
+  // converged stream over three cycles of thigh13 (docs/realtime.md); 1 (straight linear extrapolation) fed its own
+  // error back and diverged.
   double predict_extrapolation = 0.5;
 };
 
