@@ -261,6 +261,22 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("at most 6.000 % at the worst muscle (target <= 5 %: missed); the residual criterion not met "
                       "within them (missed).", text)
 
+    def test_standing_still_with_jitter_reports_its_residual_against_the_criterion(self):
+        gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,
+                "strain_p99_max": 0.4, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1, "deepest_particle": "",
+                "particle_volume_error_max_pct": 2.0, "settled_converged": 1.0}
+        still = dict(gait, case="standing_jitter", description="standing still", residual_motion_median=0.0004,
+                     residual_motion_max=0.0011, residual_tolerance=0.05)
+        text = "\n".join(accuracy_report.stability_section([gait, still]))
+        self.assertIn("Standing still with a recording's jitter (standing still), every pose solved warm with the "
+                      "stream's sweeps: residual median 0.0004, at most 0.0011 (the residual criterion is 0.05: never "
+                      "left).", text)
+        wandering = dict(still, residual_motion_max=1.8)
+        text = "\n".join(accuracy_report.stability_section([gait, wandering]))
+        self.assertIn("at most 1.8 (the residual criterion is 0.05: left).", text)
+        unmeasured = dict(still, residual_motion_max=None)
+        self.assertNotIn("Standing still", "\n".join(accuracy_report.stability_section([gait, unmeasured])))
+
 
 
 class RooflineTest(unittest.TestCase):

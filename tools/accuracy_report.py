@@ -213,6 +213,15 @@ def _after_hold_lines(motions, gait):
                      f"error at most {volume:.3f} % at the worst muscle (target <= {AFTER_JUMP_VOLUME_PCT:g} %: "
                      f"{'met' if volume <= AFTER_JUMP_VOLUME_PCT else 'missed'}); the residual criterion "
                      + (f"met after {int(settled)} held poses (met)." if criterion else "not met within them (missed)."))
+    still = next((row for row in motions if row["case"] == "standing_jitter"), None)
+    if still and still.get("residual_motion_max") is not None:
+        tolerance = still.get("residual_tolerance")
+        lines.append(f"Standing still with a recording's jitter ({still.get('description', '')}), every pose solved "
+                     f"warm with the stream's sweeps: residual median {still['residual_motion_median']:.2g}, at most "
+                     f"{still['residual_motion_max']:.2g}"
+                     + (f" (the residual criterion is {tolerance:g}: "
+                        f"{'never left' if still['residual_motion_max'] <= tolerance else 'left'})" if tolerance else "")
+                     + ".")
     judged = [row for row in motions if row.get("after_hold_strain_p99") is not None
               and row.get("converged_last_strain_p99") is not None]
     if judged:
