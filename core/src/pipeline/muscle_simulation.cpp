@@ -122,7 +122,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   state_.position = position;
   state_.previous_position = position;
   correction_.setZero(3, position.cols());
-  previous_correction_.resize(3, 0);
+  correction_change_.resize(3, 0);
   previous_correction_change_.resize(3, 0);
   previous_transforms_ = transforms;
   has_previous_ = true;
@@ -213,9 +213,9 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     // The previous answer plus its correction, moved with the bones like the answer itself.
     predicted.position = state_.position + correction_;
     const double extrapolation = settings_.prediction.predict_extrapolation;
-    if (extrapolation > 0 && previous_correction_.cols() == correction_.cols() &&
+    if (extrapolation > 0 && correction_change_.cols() == correction_.cols() &&
         previous_correction_change_.cols() == correction_.cols())
-      predicted.position += extrapolation * confirmedTrend(correction_ - previous_correction_, previous_correction_change_);
+      predicted.position += extrapolation * confirmedTrend(correction_change_, previous_correction_change_);
     warmStart(system_, previous_transforms_, transforms, predicted);
   }
   if (stats.warm_started)
@@ -372,19 +372,20 @@ void MuscleSimulation::finishFrame(const BoneTransforms& transforms, bool drag, 
   if (drag && last_frame_warm_) {
     // After a refinement the change of the correction is the refinement's, not a drift of the motion that the next
     // frame could extrapolate: the next frame carries the correction on without extrapolating.
+    Eigen::Matrix3Xd correction = state_.position - state_.carried_position;  // zero for fixed particles
     if (refinement) {
-      previous_correction_.resize(3, 0);
+      correction_change_.resize(3, 0);
       previous_correction_change_.resize(3, 0);
     } else {
-      if (previous_correction_.cols() == correction_.cols())
-        previous_correction_change_ = correction_ - previous_correction_;
+      previous_correction_change_ = std::move(correction_change_);
+      if (correction_.cols() == correction.cols())
+        correction_change_ = correction - correction_;
       else
-        previous_correction_change_.resize(3, 0);
-      previous_correction_ = std::move(correction_);
+        correction_change_.resize(3, 0);
     }
-    correction_ = state_.position - state_.carried_position;  // zero for fixed particles: both follow their bone
+    correction_ = std::move(correction);
   } else {
-    previous_correction_.resize(3, 0);  // nothing to extrapolate from after a cold start
+    correction_change_.resize(3, 0);  // nothing to extrapolate from after a cold start
     previous_correction_change_.resize(3, 0);
     correction_.setZero(3, system_.particleCount());
   }

@@ -104,11 +104,10 @@ class MuscleSimulation {
   // The last frame's correction (its answer minus where the tissue carried it; zero after a cold start), which the next
   // warm start carries on (StartPrediction).
   Eigen::Matrix3Xd correction_;
-  // The correction of the frame before (for StartPrediction::predict_extrapolation), empty when that frame did not
-  // continue a warm one.
-  Eigen::Matrix3Xd previous_correction_;
-  // That frame's change of the correction (the one before the latest), empty when unknown: what the extrapolation's
-  // trend must be confirmed by.
+  // The last frame's change of the correction (for StartPrediction::predict_extrapolation) and the change before it
+  // (what the extrapolated trend must be confirmed by); empty where there is none to carry on (after a cold start, a
+  // refinement or continueFrom).
+  Eigen::Matrix3Xd correction_change_;
   Eigen::Matrix3Xd previous_correction_change_;
   BoneTransforms previous_transforms_;
   bool has_previous_ = false;
