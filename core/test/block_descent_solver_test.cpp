@@ -359,6 +359,120 @@ TEST(BlockDescent, DragAlongTheFibreIsItsOwnShareOfTheTissueDrag) {
   EXPECT_FALSE(validate(bad).empty());
 }
 
+namespace {
+// The y at which the middle particle of threeParticleFibre(), held at x = 1 by symmetry, balances the drag across the
+// fibre (weight 1 N/m towards carried_y), the tie (tau N/m towards rest_y) and its two unit springs at rest length 1,
+// whose sideways pull is 2 (1 - 1 / sqrt(1 + y^2)) y: by bisection, independent of the solver.
+double balancedAcross(double carried_y, double tau, double rest_y) {
+  const auto net = [&](double y) {
+    return (carried_y - y) + tau * (rest_y - y) - 2.0 * (1.0 - 1.0 / std::sqrt(1.0 + y * y)) * y;
+  };
+  double low = -1.0, high = 1.0;  // net(low) > 0 > net(high)
+  for (int i = 0; i < 200; ++i) (net(0.5 * (low + high)) > 0 ? low : high) = 0.5 * (low + high);
+  return 0.5 * (low + high);
+}
+// The middle particle's answer with the tie: drag weight 1 N/m (threeParticleFibre's), tie tau = 2 x tie N/m.
+Eigen::Vector3d tiedMiddleAnswer(double tie, double drag_along_fibre, const Eigen::Vector3d& carried,
+                                 const Eigen::Vector3d& rest_carried) {
+  BlockDescentSettings settings;
+  settings.tissue_relaxation_s = 0.005;
+  settings.drag_along_fibre = drag_along_fibre;
+  settings.across_fibre_tie = tie;
+  const MassSpringSystem system = threeParticleFibre();
+  BlockDescentSolver solver(system, settings);
+  solver.setFrameInterval(0.01);
+  ParticleState state = stateAt(system.rest_position);
+  state.carried_position = state.position;
+  state.carried_position.col(1) = carried;
+  state.rest_carried_position = state.position;
+  state.rest_carried_position.col(1) = rest_carried;
+  const SolveStats stats = solver.solve(state, converging(500, 1e-12));
+  EXPECT_TRUE(stats.converged) << "tie " << tie;
+  EXPECT_LT(solver.residualOf(state), 1e-10);
+  return state.position.col(1);
+}
+}  // namespace
+
+TEST(BlockDescent, TheAcrossFibreTiePullsAcrossTheFibreOnlyTowardsTheRestTheBonesCarry) {
+  // Carried along the fibre: the tie takes nothing, whatever the drag's share along it.
+  for (const double a : {1.0, 0.25}) {
+    const Eigen::Vector3d x = tiedMiddleAnswer(0.5, a, Eigen::Vector3d(1.3, 0, 0), Eigen::Vector3d(1, 0, 0));
+    EXPECT_NEAR(x.x() - 1.0, a * 0.3 / (2.0 + a), 1e-9) << "drag_along_fibre " << a;
+    EXPECT_NEAR(x.tail<2>().norm(), 0.0, 1e-12);
+  }
+  // Carried across: the tie (tau = 1 N/m) holds the particle back towards its rest, as the balance of forces says.
+  const Eigen::Vector3d across = tiedMiddleAnswer(0.5, 1.0, Eigen::Vector3d(1, 0.3, 0), Eigen::Vector3d(1, 0, 0));
+  EXPECT_NEAR(across.y(), balancedAcross(0.3, 1.0, 0.0), 1e-9);
+  EXPECT_NEAR(across.x(), 1.0, 1e-9);
+  EXPECT_LT(across.y(), 0.8 * tiedMiddleAnswer(0.0, 1.0, Eigen::Vector3d(1, 0.3, 0), Eigen::Vector3d(1, 0, 0)).y());
+  // A rest that lies off along the fibre as well as across: only the part across pulls, with a drag of any share.
+  for (const double a : {1.0, 0.25, 0.0}) {
+    const Eigen::Vector3d x = tiedMiddleAnswer(2.0, a, Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(1.2, -0.1, 0));
+    EXPECT_NEAR(x.x(), 1.0, 1e-9) << "drag_along_fibre " << a;
+    EXPECT_NEAR(x.y(), balancedAcross(0.0, 4.0, -0.1), 1e-9) << "drag_along_fibre " << a;
+  }
+}
+
+TEST(BlockDescent, TheAcrossFibreTieIsRefusedWithoutTheDragAndWithoutTheRestItTiesTo) {
+  BlockDescentSettings bad;
+  bad.across_fibre_tie = -0.1;
+  bad.tissue_relaxation_s = 0.001;
+  EXPECT_NE(validate(bad).find("across_fibre_tie"), std::string::npos);
+  bad.across_fibre_tie = 0.01;
+  bad.tissue_relaxation_s = 0;
+  EXPECT_NE(validate(bad).find("across_fibre_tie"), std::string::npos);
+  bad.tissue_relaxation_s = 0.001;
+  EXPECT_TRUE(validate(bad).empty());
+  const MassSpringSystem system = threeParticleFibre();
+  BlockDescentSolver solver(system, bad);
+  ParticleState state = stateAt(system.rest_position);
+  state.carried_position = state.position;  // and no rest_carried_position
+  EXPECT_THROW(solver.solve(state, converging(10, 1e-9)), std::invalid_argument);
+}
+
+TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtRest) {
+  // A fibre of 9 particles on an arc (radius 0.1 m, 1.2 rad, sagitta 17.5 mm), ends fixed, its springs' rest lengths
+  // 0.8 of their length (pre-tension). Held still and solved one sweep a frame with the drag anchored where the frame
+  // before ended (the stream at rest), the tension pulls the belly towards its chord and the drag only slows that; the
+  // tie stops it where its pull across balances the tension's.
+  constexpr int kParticles = 9;
+  Eigen::Matrix3Xd arc = Eigen::Matrix3Xd::Zero(3, kParticles);
+  ParticlePairs springs;
+  for (int i = 0; i < kParticles; ++i) {
+    const double angle = -0.6 + 1.2 * i / (kParticles - 1);
+    arc.col(i) << 0.1 * std::sin(angle), 0.1 * (std::cos(angle) - std::cos(0.6)), 0;
+  }
+  for (int i = 0; i + 1 < kParticles; ++i) springs.emplace_back(i, i + 1);
+  MassSpringSystem system = systemFromParticles(arc, springs, 1e-3, 10.0);
+  system.is_fixed[0] = system.is_fixed[kParticles - 1] = 1;
+  system.springs.rest_length *= 0.8;
+  const double sagitta = arc(1, kParticles / 2);
+  const auto heldStill = [&](double tie, int frames, double& last_change) {
+    BlockDescentSettings settings;
+    settings.tissue_relaxation_s = 0.001;
+    settings.across_fibre_tie = tie;
+    BlockDescentSolver solver(system, settings);
+    solver.setFrameInterval(1.0 / 60.0);
+    ParticleState state = stateAt(system.rest_position);
+    state.rest_carried_position = system.rest_position;
+    for (int frame = 0; frame < frames; ++frame) {
+      const Eigen::Matrix3Xd before = state.position;
+      state.carried_position = state.position;
+      solver.solve(state, converging(1, 0.0));
+      last_change = (state.position - before).colwise().norm().maxCoeff();
+    }
+    return state.position(1, kParticles / 2);
+  };
+  double untied_change = 0, tied_change = 0;
+  const double untied = heldStill(0.0, 3000, untied_change);
+  const double tied = heldStill(0.03, 3000, tied_change);
+  std::printf("middle's sagitta after 3000 frames: %.2f mm untied, %.2f mm tied (rest %.2f mm); last frame's change "
+              "%.2g / %.2g m\n", 1e3 * untied, 1e3 * tied, 1e3 * sagitta, untied_change, tied_change);
+  EXPECT_LT(untied, 0.3 * sagitta) << "the untied fibre creeps towards its chord";
+  EXPECT_GT(tied, 0.5 * sagitta) << "the tie holds the belly near its shape";  // 0.70 of it measured
+  EXPECT_LT(tied_change, 1e-9) << "and it has stopped moving";
+}
+
 TEST(BlockDescent, SweepCostCountsWhatEachParticleSpringAndContactMoves) {
   // A chain of 11 particles, ends fixed: 9 free particles with 18 packed springs between them, no contacts. Per free
   // particle 144 bytes (position read and written, carried position, seven doubles, four indices) and 71 flops (drag 12,

@@ -70,6 +70,40 @@ TEST(NewtonKrylov, DragAlongTheFibreMatchesTheAnalyticAnswer) {
   EXPECT_NEAR(state.position(0, 1) - 1.0, 0.25 * 0.3 / 2.25, 1e-9);
 }
 
+TEST(NewtonKrylov, TheAcrossFibreTieMatchesBlockDescentsAnswer) {
+  // The three-particle fibre of the drag test with a quarter of the drag along it and the across-fibre tie (2 N/m on the
+  // middle particle), carried off along and across, its rest carried off along and across: the whole-frame Newton
+  // steps (frameForces, frameHessianTimes) reach the answer of block descent's sweeps.
+  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, 3);
+  positions.row(0) << 0, 1, 2;
+  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
+  system.is_fixed[0] = system.is_fixed[2] = 1;
+  BlockDescentSettings energy;
+  energy.tissue_relaxation_s = 0.005;
+  energy.drag_along_fibre = 0.25;
+  energy.across_fibre_tie = 1.0;
+  ParticleState start = stateAt(system.rest_position);
+  start.carried_position = start.position;
+  start.carried_position.col(1) = Eigen::Vector3d(1.2, 0.3, -0.1);
+  start.rest_carried_position = start.position;
+  start.rest_carried_position.col(1) = Eigen::Vector3d(0.9, -0.2, 0.1);
+  ParticleState newton = start, sweeps = start;
+  NewtonKrylovSolver solver(system, energy, {});
+  solver.setFrameInterval(0.01);
+  // 1e-8: the line search compares frame energies of about 0.1 J, which cannot tell steps below a few 1e-9 N apart.
+  EXPECT_TRUE(solver.solve(newton, converging(100, 1e-8)).converged);
+  BlockDescentSolver reference(system, energy);
+  reference.setFrameInterval(0.01);
+  EXPECT_TRUE(reference.solve(sweeps, converging(2000, 1e-12)).converged);
+  EXPECT_LT((newton.position.col(1) - sweeps.position.col(1)).norm(), 1e-8);
+  energy.across_fibre_tie = 0;
+  BlockDescentSolver untied(system, energy);
+  untied.setFrameInterval(0.01);
+  ParticleState without = start;
+  EXPECT_TRUE(untied.solve(without, converging(2000, 1e-12)).converged);
+  EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);  // the tie takes part
+}
+
 TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {
   // The synthetic thigh after a warm pose change, with contacts and the node's tissue drag: both solvers converged to
   // a tight force residual from the same start end in the same state.

@@ -231,6 +231,14 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   } else {
     state_.carried_position.resize(3, 0);
   }
+  if (drag && solver_->tiesToRestShape()) {
+    // The across-fibre tie's anchor: the rest shape as the bones carry it in this pose.
+    ParticleState rest_carried;
+    rigidPretransform(system_, transforms, rest_carried);
+    state_.rest_carried_position = std::move(rest_carried.position);
+  } else {
+    state_.rest_carried_position.resize(3, 0);
+  }
   solver_->setFrameInterval(stats.warm_started ? frame_interval_s : kNominalFrameIntervalS);
 
   // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed

@@ -110,6 +110,11 @@ std::vector<SettingSpec> buildTable() {
              "block_descent / newton_krylov: the share of the tissue drag that acts along the fibres (1 = the same in "
              "every direction; below 1 the belly slides along its fibres more freely than it moves across them)",
              [block_descent](CoreSettings& s) -> double& { return block_descent(s).drag_along_fibre; }),
+      number("across_fibre_tie", "", 0.0, 1e3,
+             "block_descent / newton_krylov: each particle is pulled, across its fibre only, towards where the bones "
+             "carry its rest position, with this x its summed spring stiffness (0 = none; needs the tissue drag): "
+             "holds a pre-tensioned belly's shape and leaves its fibres free to lengthen",
+             [block_descent](CoreSettings& s) -> double& { return block_descent(s).across_fibre_tie; }),
       number("volume_stiffness", "", 0.0, 1e9,
              "block_descent / newton_krylov: incompressibility, each muscle's skinned volume kept by a term of the "
              "frame energy (0 = none); a relative volume change e pulls each skin particle with about this x e of the "

@@ -181,6 +181,10 @@ std::string validate(const BlockDescentSettings& settings) {
     return "volume_pressure_gain must lie in [0, 1]";
   if (!(settings.drag_along_fibre >= 0 && settings.drag_along_fibre <= 1))
     return "drag_along_fibre must lie in [0, 1]";
+  if (!(settings.across_fibre_tie >= 0) || !std::isfinite(settings.across_fibre_tie))
+    return "across_fibre_tie must be a finite number >= 0";
+  if (settings.across_fibre_tie > 0 && !(settings.tissue_relaxation_s > 0))
+    return "across_fibre_tie needs the tissue drag (tissue_relaxation_s > 0): the tie shares its frame anchor";
   return {};
 }
 
@@ -413,8 +417,39 @@ void BlockDescentSolver::restLengthsChanged() {
 
 void BlockDescentSolver::updateDragWeights() {
   const double factor = settings_.tissue_relaxation_s / frame_interval_s_;
+  const double tie = tiesAcrossFibres() ? settings_.across_fibre_tie : 0.0;
   drag_weight_.setZero(system_.particleCount());
-  for (const std::int32_t p : free_particles_) drag_weight_[p] = factor * spring_stiffness_sum_[p];
+  for (const std::int32_t p : free_particles_) drag_weight_[p] = (factor + tie) * spring_stiffness_sum_[p];
+  // Weighted shares along the fibre (the tie has none there): a' = w a / (w + tau), the same for every particle.
+  drag_along_ = tie > 0 ? factor * settings_.drag_along_fibre / (factor + tie) : settings_.drag_along_fibre;
+}
+
+const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState& state, const Eigen::Matrix3Xd& carried,
+                                                            Eigen::Matrix3Xd& merged) {
+  if (!tiesAcrossFibres()) {
+    updateDragDirections(carried);
+    return carried;
+  }
+  if (state.rest_carried_position.cols() != carried.cols())
+    throw std::invalid_argument("block descent: across_fibre_tie needs state.rest_carried_position (" +
+                                std::to_string(state.rest_carried_position.cols()) + " columns for " +
+                                std::to_string(carried.cols()) + " particles)");
+  // The fibres' directions in the rest shape as the bones carry it: for a held pose the tie is then one fixed energy
+  // from frame to frame. Taken from where the tissue carries the particles, a fibre that folds turns its particles'
+  // directions from frame to frame and the tie with them, and a held stream kept moving (0.5 mm a frame with every
+  // frame converged). The drag shares the direction (one quadratic per particle).
+  updateDragDirections(state.rest_carried_position);
+  // m = c + tau / (w + tau) (I - t t^T)(h - c): the tie's pull across the fibre joins the drag's anchor.
+  const double factor = settings_.tissue_relaxation_s / frame_interval_s_;
+  const double share = settings_.across_fibre_tie / (factor + settings_.across_fibre_tie);
+  merged = carried;
+  for (const std::int32_t p : free_particles_) {
+    const Eigen::Vector3d t = drag_direction_.col(p);
+    Eigen::Vector3d towards_rest = state.rest_carried_position.col(p) - carried.col(p);
+    towards_rest -= t.dot(towards_rest) * t;
+    merged.col(p) += share * towards_rest;
+  }
+  return merged;
 }
 
 void BlockDescentSolver::updateDragDirections(const Eigen::Matrix3Xd& anchor) {
@@ -426,7 +461,7 @@ double BlockDescentSolver::dragEnergy(std::int32_t p, const Eigen::Vector3d& x, 
   double squared = d.squaredNorm();
   if (anisotropicDrag()) {
     const double along = drag_direction_.col(p).dot(d);
-    squared -= (1.0 - settings_.drag_along_fibre) * along * along;
+    squared -= (1.0 - drag_along_) * along * along;
   }
   return 0.5 * drag_weight_[p] * squared;
 }
@@ -583,7 +618,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       const std::int32_t spring_end = slot_spring_begin_[static_cast<std::size_t>(k) + 1];
       const bool has_contacts = contact_end > contact_begin;
       const double drag = drag_weight_[p];
-      const double drag_along = settings_.drag_along_fibre;
+      const double drag_along = drag_along_;
       const Eigen::Vector3d carried = drag_anchor_->col(p);
       const Eigen::Vector3d fibre_direction = dragDirection(p);
       // The muscle's volume term: V is linear in this particle's position (volume_term.hpp), V = V_now + g . (x - start).
@@ -715,7 +750,8 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
   evaluateVolume(state.position);
   const Eigen::Matrix3Xd& position = state.position;
   const bool with_drag = state.carried_position.cols() == position.cols();
-  if (with_drag) updateDragDirections(state.carried_position);
+  Eigen::Matrix3Xd merged;
+  const Eigen::Matrix3Xd& anchor = with_drag ? frameDragAnchor(state, state.carried_position, merged) : position;
   double sum = 0;
   for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
     const std::int32_t p = coloured_particles_[slot];
@@ -733,8 +769,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
       addContact(Eigen::Vector3d(position.col(p)), current, contactStiffnessOf(p, entry), 1.0, block);
     }
     if (with_drag)
-      addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), position.col(p),
-              state.carried_position.col(p), block);
+      addDrag(drag_weight_[p], drag_along_, dragDirection(p), position.col(p), anchor.col(p), block);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     sum += block.forceSquared();
   }
@@ -777,8 +812,9 @@ BlockDescentSolver::SweepCost BlockDescentSolver::sweepCost(const ParticleState&
 
 void BlockDescentSolver::beginFrame(const ParticleState& state, double margin_m) {
   entry_position_ = state.position;
-  drag_anchor_ = state.carried_position.cols() == state.position.cols() ? &state.carried_position : &entry_position_;
-  updateDragDirections(*drag_anchor_);
+  drag_anchor_ = &frameDragAnchor(
+      state, state.carried_position.cols() == state.position.cols() ? state.carried_position : entry_position_,
+      tied_anchor_);
   gatherContacts(state, margin_m);
 }
 
@@ -911,7 +947,7 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
       addOwn(block);  // the partner held (a stiffer, safe model)
     }
     Block drag;
-    addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), drag);
+    addDrag(drag_weight_[p], drag_along_, dragDirection(p), x, drag_anchor_->col(p), drag);
     drag.addIsotropic(regularisation_[p]);
     addOwn(drag);
     if (volume_.active() && volume_gradient_.cols() == position.cols() && volume_.stiffness[m] > 0) {
@@ -995,7 +1031,7 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
       addContact(x, atPositions(entry, position),
                  contactStiffnessOf(p, entry), 1.0, block);
     }
-    addDrag(drag_weight_[p], settings_.drag_along_fibre, dragDirection(p), x, drag_anchor_->col(p), block);
+    addDrag(drag_weight_[p], drag_along_, dragDirection(p), x, drag_anchor_->col(p), block);
     block.addIsotropic(regularisation_[p]);
     addVolumeForce(volume_, volume_now_, volume_gradient_, system_.muscle_of[static_cast<std::size_t>(p)], p, block);
     force.col(p) = Eigen::Vector3d(block.fx, block.fy, block.fz);
@@ -1036,7 +1072,7 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
     Eigen::Vector3d sum = (drag_weight_[p] + regularisation_[p]) * vp;
     if (anisotropicDrag()) {
       const Eigen::Vector3d t = drag_direction_.col(p);
-      sum -= drag_weight_[p] * (1.0 - settings_.drag_along_fibre) * t.dot(vp) * t;
+      sum -= drag_weight_[p] * (1.0 - drag_along_) * t.dot(vp) * t;
     }
     const auto apply = [&](const Block& b, const Eigen::Vector3d& relative) {
       sum.x() += b.hxx * relative.x() + b.hxy * relative.y() + b.hxz * relative.z();
@@ -1076,8 +1112,8 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const StoppingSetting
     throw std::invalid_argument("BlockDescentSolver: state has " + std::to_string(state.position.cols()) +
                                 " particles, the system " + std::to_string(n));
   entry_position_ = state.position;
-  drag_anchor_ = state.carried_position.cols() == n ? &state.carried_position : &entry_position_;
-  updateDragDirections(*drag_anchor_);
+  drag_anchor_ = &frameDragAnchor(state, state.carried_position.cols() == n ? state.carried_position : entry_position_,
+                                  tied_anchor_);
   const double free_count = std::max<double>(1.0, static_cast<double>(free_particles_.size()));
   const bool chebyshev = settings_.chebyshev_rho > 0;
   const double rho_squared = settings_.chebyshev_rho * settings_.chebyshev_rho;

@@ -81,6 +81,9 @@ struct ParticleState {
   // (warm start) or the rigid pre-transform (cold). The tissue drag of block descent pulls towards it; empty: the
   // position on entry to the solve. Solvers without drag ignore it.
   Eigen::Matrix3Xd carried_position = Eigen::Matrix3Xd(3, 0);
+  // Where the bones carry the rest shape this frame (the rigid pre-transform of the rest positions): the anchor of
+  // block descent's across-fibre tie (BlockDescentSettings::across_fibre_tie); empty without one.
+  Eigen::Matrix3Xd rest_carried_position = Eigen::Matrix3Xd(3, 0);
 };
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon

@@ -72,6 +72,14 @@ struct BlockDescentSettings {
   // more freely than it moves across them, so a joint that shortens or lengthens a muscle's path reaches its belly
   // within the frame (the slow whole-length mode is along the fibres).
   double drag_along_fibre = 1.0;
+  // Across-fibre tie to the anatomy: each free particle is pulled, across its fibre only, towards where the bones carry
+  // its rest position (state.rest_carried_position, the rigid pre-transform), with stiffness across_fibre_tie x its
+  // summed spring stiffness; its energy is 1/2 across_fibre_tie k_p |(I - t t^T)(x - h)|^2 with t the fibre's direction
+  // in that carried rest shape (so that a held pose has one fixed tie; the drag then takes the same direction). A pre-tensioned fibre pulls its curved belly towards its chord, and the drag
+  // alone only slows that (the muscles crept by centimetres from their segmented shape over seconds at rest); the tie
+  // holds the belly's cross-section where the anatomy has it and leaves the fibre free to lengthen and shorten. Rides
+  // on the tissue drag (needs tissue_relaxation_s > 0, whose frame anchor it shares). 0 = none.
+  double across_fibre_tie = 0.0;
   // Incompressibility: each muscle's volume term (volume_term.hpp) has stiffness k_m = volume_stiffness x material
   // constant x (skin particles) / (rest volume x rest skin area), so that a relative volume change e pulls each particle
   // the skin follows with about volume_stiffness x e of the springs' material constant. 0 = none (the seeds' model);
@@ -130,6 +138,7 @@ class BlockDescentSolver final : public SoftBodySolver {
                    const AfterUpdateHook& after_update = {}) override;
   bool solvesContacts() const override { return true; }
   bool dragsTissue() const override { return settings_.tissue_relaxation_s > 0; }
+  bool tiesToRestShape() const override { return tiesAcrossFibres(); }
   // The muscles' volume term (volume_term.hpp) joins the frame energy: evaluated before every sweep, each particle's
   // step takes its muscle's volume as it stands after the colours before it.
   bool keepsVolume() const override { return true; }
@@ -144,7 +153,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   double frameInterval() const { return frame_interval_s_; }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
 
-  // The relative RMS net force (springs, contacts and tissue drag towards state.carried_position when it is set, as
+  // The relative RMS net force (springs, contacts, tissue drag towards state.carried_position when it is set and the
+  // across-fibre tie when it is on, as
   // this solver models them) on the free particles at `state`,
   // whichever solver produced it: the common measure of how far a state is from the equilibrium. Does not change the
   // state (uses the contact query).
@@ -248,15 +258,28 @@ class BlockDescentSolver final : public SoftBodySolver {
   std::vector<std::int32_t> free_particles_;
   Eigen::VectorXd regularisation_;
   Eigen::VectorXd spring_stiffness_sum_;  // per particle, N/m
+  // The drag and the across-fibre tie share one quadratic per particle (both act along the same fibre direction t):
+  // w (I - (1 - a) t t^T) about the carried position c plus tau (I - t t^T) about the rest carried by the bones h is,
+  // up to a constant, (w + tau)(I - (1 - a') t t^T) about m = c + tau / (w + tau) (I - t t^T)(h - c), with
+  // a' = w a / (w + tau). drag_weight_ and drag_along_ are the combined weight and share, drag_anchor_ points at m when
+  // the tie is on (tied_anchor_), at c otherwise.
   Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
+  double drag_along_ = 1.0;               // the combined share along the fibre (settings' drag_along_fibre untied)
   double frame_interval_s_ = kNominalFrameIntervalS;
   const Eigen::Matrix3Xd* drag_anchor_ = nullptr;  // during a solve: where the tissue carries each particle
-  // The unit fibre direction of each particle at the drag anchor (fibreDirections), set only while the drag is weaker
-  // along the fibre than across it.
+  Eigen::Matrix3Xd tied_anchor_;                   // m above, for the frame (empty without the tie)
+  // The unit fibre direction of each particle at the carried position, with the tie in the carried rest shape
+  // (fibreDirections), set only while the drag is weaker along the fibre than across it (always with the tie).
   Eigen::Matrix3Xd drag_direction_;
-  bool anisotropicDrag() const { return settings_.drag_along_fibre < 1.0; }
+  bool anisotropicDrag() const { return drag_along_ < 1.0; }
+  bool tiesAcrossFibres() const { return settings_.across_fibre_tie > 0 && settings_.tissue_relaxation_s > 0; }
   // drag_direction_ from the fibres at `anchor` (nothing when the drag is isotropic).
   void updateDragDirections(const Eigen::Matrix3Xd& anchor);
+  // The frame's drag anchor: `carried` (the state's carried positions, or its entry positions without them), or with the
+  // tie on the merged anchor written to `merged` (throws when the state lacks its rest carried positions); sets
+  // drag_direction_ on the way.
+  const Eigen::Matrix3Xd& frameDragAnchor(const ParticleState& state, const Eigen::Matrix3Xd& carried,
+                                          Eigen::Matrix3Xd& merged);
   // Particle p's fibre direction for the drag: zero (every direction alike) when the drag is isotropic.
   Eigen::Vector3d dragDirection(std::int32_t p) const {
     return anisotropicDrag() ? Eigen::Vector3d(drag_direction_.col(p)) : Eigen::Vector3d::Zero();

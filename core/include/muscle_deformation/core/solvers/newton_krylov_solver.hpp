@@ -42,6 +42,7 @@ class NewtonKrylovSolver final : public SoftBodySolver {
                    const AfterUpdateHook& after_update = {}) override;
   bool solvesContacts() const override { return true; }
   bool dragsTissue() const override { return energy_.dragsTissue(); }
+  bool tiesToRestShape() const override { return energy_.tiesToRestShape(); }
   bool keepsVolume() const override { return true; }
   void restLengthsChanged() override { energy_.restLengthsChanged(); }
   void setVolumeTerm(VolumeTerm term) override { energy_.setVolumeTerm(std::move(term)); }

@@ -52,6 +52,9 @@ class SoftBodySolver {
   // Whether the answer of a solve includes tissue drag towards state.carried_position (block descent's energy with a
   // relaxation time): the simulation then sets the carried positions and may predict a start.
   virtual bool dragsTissue() const { return false; }
+  // Whether the solve ties particles to where the bones carry their rest positions (state.rest_carried_position, which
+  // the simulation then sets every frame).
+  virtual bool tiesToRestShape() const { return false; }
   // Solvers that minimise a frame energy take the muscles' volume term into it (volume_term.hpp); the others ignore it
   // and say so here.
   virtual bool keepsVolume() const { return false; }
