@@ -322,18 +322,23 @@ MassSpringSystem threeParticleFibre() {
   system.is_fixed[0] = system.is_fixed[2] = 1;
   return system;
 }
-Eigen::Vector3d fibreMiddleAnswer(double drag_along_fibre, const Eigen::Vector3d& carried) {
+// With the across-fibre tie `tie`, its rest carried to `rest_carried`: the tie's weight on it is tau = 2 x tie N/m.
+Eigen::Vector3d fibreMiddleAnswer(double drag_along_fibre, const Eigen::Vector3d& carried, double tie = 0.0,
+                                  const Eigen::Vector3d& rest_carried = Eigen::Vector3d(1, 0, 0)) {
   BlockDescentSettings settings;
   settings.tissue_relaxation_s = 0.005;
   settings.drag_along_fibre = drag_along_fibre;
+  settings.across_fibre_tie = tie;
   const MassSpringSystem system = threeParticleFibre();
   BlockDescentSolver solver(system, settings);
   solver.setFrameInterval(0.01);
   ParticleState state = stateAt(system.rest_position);
   state.carried_position = state.position;
   state.carried_position.col(1) = carried;
+  state.rest_carried_position = state.position;
+  state.rest_carried_position.col(1) = rest_carried;
   const SolveStats stats = solver.solve(state, converging(500, 1e-12));
-  EXPECT_TRUE(stats.converged) << "drag_along_fibre " << drag_along_fibre;
+  EXPECT_TRUE(stats.converged) << "drag_along_fibre " << drag_along_fibre << ", tie " << tie;
   EXPECT_LT(solver.residualOf(state), 1e-10);
   return state.position.col(1);
 }
@@ -371,43 +376,23 @@ double balancedAcross(double carried_y, double tau, double rest_y) {
   for (int i = 0; i < 200; ++i) (net(0.5 * (low + high)) > 0 ? low : high) = 0.5 * (low + high);
   return 0.5 * (low + high);
 }
-// The middle particle's answer with the tie: drag weight 1 N/m (threeParticleFibre's), tie tau = 2 x tie N/m.
-Eigen::Vector3d tiedMiddleAnswer(double tie, double drag_along_fibre, const Eigen::Vector3d& carried,
-                                 const Eigen::Vector3d& rest_carried) {
-  BlockDescentSettings settings;
-  settings.tissue_relaxation_s = 0.005;
-  settings.drag_along_fibre = drag_along_fibre;
-  settings.across_fibre_tie = tie;
-  const MassSpringSystem system = threeParticleFibre();
-  BlockDescentSolver solver(system, settings);
-  solver.setFrameInterval(0.01);
-  ParticleState state = stateAt(system.rest_position);
-  state.carried_position = state.position;
-  state.carried_position.col(1) = carried;
-  state.rest_carried_position = state.position;
-  state.rest_carried_position.col(1) = rest_carried;
-  const SolveStats stats = solver.solve(state, converging(500, 1e-12));
-  EXPECT_TRUE(stats.converged) << "tie " << tie;
-  EXPECT_LT(solver.residualOf(state), 1e-10);
-  return state.position.col(1);
-}
 }  // namespace
 
 TEST(BlockDescent, TheAcrossFibreTiePullsAcrossTheFibreOnlyTowardsTheRestTheBonesCarry) {
   // Carried along the fibre: the tie takes nothing, whatever the drag's share along it.
   for (const double a : {1.0, 0.25}) {
-    const Eigen::Vector3d x = tiedMiddleAnswer(0.5, a, Eigen::Vector3d(1.3, 0, 0), Eigen::Vector3d(1, 0, 0));
+    const Eigen::Vector3d x = fibreMiddleAnswer(a, Eigen::Vector3d(1.3, 0, 0), 0.5, Eigen::Vector3d(1, 0, 0));
     EXPECT_NEAR(x.x() - 1.0, a * 0.3 / (2.0 + a), 1e-9) << "drag_along_fibre " << a;
     EXPECT_NEAR(x.tail<2>().norm(), 0.0, 1e-12);
   }
   // Carried across: the tie (tau = 1 N/m) holds the particle back towards its rest, as the balance of forces says.
-  const Eigen::Vector3d across = tiedMiddleAnswer(0.5, 1.0, Eigen::Vector3d(1, 0.3, 0), Eigen::Vector3d(1, 0, 0));
+  const Eigen::Vector3d across = fibreMiddleAnswer(1.0, Eigen::Vector3d(1, 0.3, 0), 0.5, Eigen::Vector3d(1, 0, 0));
   EXPECT_NEAR(across.y(), balancedAcross(0.3, 1.0, 0.0), 1e-9);
   EXPECT_NEAR(across.x(), 1.0, 1e-9);
-  EXPECT_LT(across.y(), 0.8 * tiedMiddleAnswer(0.0, 1.0, Eigen::Vector3d(1, 0.3, 0), Eigen::Vector3d(1, 0, 0)).y());
+  EXPECT_LT(across.y(), 0.8 * fibreMiddleAnswer(1.0, Eigen::Vector3d(1, 0.3, 0)).y());
   // A rest that lies off along the fibre as well as across: only the part across pulls, with a drag of any share.
   for (const double a : {1.0, 0.25, 0.0}) {
-    const Eigen::Vector3d x = tiedMiddleAnswer(2.0, a, Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(1.2, -0.1, 0));
+    const Eigen::Vector3d x = fibreMiddleAnswer(a, Eigen::Vector3d(1, 0, 0), 2.0, Eigen::Vector3d(1.2, -0.1, 0));
     EXPECT_NEAR(x.x(), 1.0, 1e-9) << "drag_along_fibre " << a;
     EXPECT_NEAR(x.y(), balancedAcross(0.0, 4.0, -0.1), 1e-9) << "drag_along_fibre " << a;
   }

@@ -50,13 +50,21 @@ TEST(NewtonKrylov, TissueDragAnswerOfAFloppyParticleMatchesTheAnalyticOne) {
   EXPECT_LT((state.position.col(1) - expected).norm(), 1e-9);
 }
 
-TEST(NewtonKrylov, DragAlongTheFibreMatchesTheAnalyticAnswer) {
-  // Three particles 1 m apart on a fibre, ends fixed, unit springs: the middle one's drag weight is 1 N/m; carried
-  // 0.3 m along the fibre with a quarter of the drag along it, it moves 0.25 x 0.3 / (2 + 0.25) (block descent's test).
+namespace {
+// Three particles 1 m apart on a fibre along x, ends fixed, unit springs (block descent's drag test).
+MassSpringSystem threeParticleFibre() {
   Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, 3);
   positions.row(0) << 0, 1, 2;
   MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
   system.is_fixed[0] = system.is_fixed[2] = 1;
+  return system;
+}
+}  // namespace
+
+TEST(NewtonKrylov, DragAlongTheFibreMatchesTheAnalyticAnswer) {
+  // The middle particle's drag weight is 1 N/m; carried 0.3 m along the fibre with a quarter of the drag along it, it
+  // moves 0.25 x 0.3 / (2 + 0.25) (block descent's test).
+  const MassSpringSystem system = threeParticleFibre();
   BlockDescentSettings energy;
   energy.tissue_relaxation_s = 0.005;
   energy.drag_along_fibre = 0.25;
@@ -74,10 +82,7 @@ TEST(NewtonKrylov, TheAcrossFibreTieMatchesBlockDescentsAnswer) {
   // The three-particle fibre of the drag test with a quarter of the drag along it and the across-fibre tie (2 N/m on the
   // middle particle), carried off along and across, its rest carried off along and across: the whole-frame Newton
   // steps (frameForces, frameHessianTimes) reach the answer of block descent's sweeps.
-  Eigen::Matrix3Xd positions = Eigen::Matrix3Xd::Zero(3, 3);
-  positions.row(0) << 0, 1, 2;
-  MassSpringSystem system = systemFromParticles(positions, {{0, 1}, {1, 2}}, 1.0, 1.0);
-  system.is_fixed[0] = system.is_fixed[2] = 1;
+  const MassSpringSystem system = threeParticleFibre();
   BlockDescentSettings energy;
   energy.tissue_relaxation_s = 0.005;
   energy.drag_along_fibre = 0.25;

@@ -232,10 +232,15 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     state_.carried_position.resize(3, 0);
   }
   if (drag && solver_->tiesToRestShape()) {
-    // The across-fibre tie's anchor: the rest shape as the bones carry it in this pose.
-    ParticleState rest_carried;
-    rigidPretransform(system_, transforms, rest_carried);
-    state_.rest_carried_position = std::move(rest_carried.position);
+    // The across-fibre tie's anchor: the rest shape as the bones carry it in this pose (a cold start's carried
+    // positions are that already).
+    if (stats.warm_started) {
+      ParticleState rest_carried;
+      rigidPretransform(system_, transforms, rest_carried);
+      state_.rest_carried_position = std::move(rest_carried.position);
+    } else {
+      state_.rest_carried_position = state_.carried_position;
+    }
   } else {
     state_.rest_carried_position.resize(3, 0);
   }

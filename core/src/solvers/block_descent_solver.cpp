@@ -420,8 +420,10 @@ void BlockDescentSolver::updateDragWeights() {
   const double tie = tiesAcrossFibres() ? settings_.across_fibre_tie : 0.0;
   drag_weight_.setZero(system_.particleCount());
   for (const std::int32_t p : free_particles_) drag_weight_[p] = (factor + tie) * spring_stiffness_sum_[p];
-  // Weighted shares along the fibre (the tie has none there): a' = w a / (w + tau), the same for every particle.
+  // Weighted shares along the fibre (the tie has none there): a' = w a / (w + tau), the same for every particle, and the
+  // tie's share of the merged anchor, tau / (w + tau).
   drag_along_ = tie > 0 ? factor * settings_.drag_along_fibre / (factor + tie) : settings_.drag_along_fibre;
+  tie_share_ = tie > 0 ? tie / (factor + tie) : 0.0;
 }
 
 const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState& state, const Eigen::Matrix3Xd& carried,
@@ -440,14 +442,12 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
   // frame converged). The drag shares the direction (one quadratic per particle).
   updateDragDirections(state.rest_carried_position);
   // m = c + tau / (w + tau) (I - t t^T)(h - c): the tie's pull across the fibre joins the drag's anchor.
-  const double factor = settings_.tissue_relaxation_s / frame_interval_s_;
-  const double share = settings_.across_fibre_tie / (factor + settings_.across_fibre_tie);
   merged = carried;
   for (const std::int32_t p : free_particles_) {
     const Eigen::Vector3d t = drag_direction_.col(p);
     Eigen::Vector3d towards_rest = state.rest_carried_position.col(p) - carried.col(p);
     towards_rest -= t.dot(towards_rest) * t;
-    merged.col(p) += share * towards_rest;
+    merged.col(p) += tie_share_ * towards_rest;
   }
   return merged;
 }

@@ -265,6 +265,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   // the tie is on (tied_anchor_), at c otherwise.
   Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
   double drag_along_ = 1.0;               // the combined share along the fibre (settings' drag_along_fibre untied)
+  double tie_share_ = 0.0;                // tau / (w + tau): the tie's share of the merged anchor (0 untied)
   double frame_interval_s_ = kNominalFrameIntervalS;
   const Eigen::Matrix3Xd* drag_anchor_ = nullptr;  // during a solve: where the tissue carries each particle
   Eigen::Matrix3Xd tied_anchor_;                   // m above, for the frame (empty without the tie)
@@ -272,7 +273,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   // (fibreDirections), set only while the drag is weaker along the fibre than across it (always with the tie).
   Eigen::Matrix3Xd drag_direction_;
   bool anisotropicDrag() const { return drag_along_ < 1.0; }
-  bool tiesAcrossFibres() const { return settings_.across_fibre_tie > 0 && settings_.tissue_relaxation_s > 0; }
+  bool tiesAcrossFibres() const { return settings_.across_fibre_tie > 0; }  // validated: only with the drag
   // drag_direction_ from the fibres at `anchor` (nothing when the drag is isotropic).
   void updateDragDirections(const Eigen::Matrix3Xd& anchor);
   // The frame's drag anchor: `carried` (the state's carried positions, or its entry positions without them), or with the
