@@ -323,12 +323,15 @@ MassSpringSystem threeParticleFibre() {
   return system;
 }
 // With the across-fibre tie `tie`, its rest carried to `rest_carried`: the tie's weight on it is tau = 2 x tie N/m.
+// With `balance` (not zero): the rest balance force on it (balance_rest_shape).
 Eigen::Vector3d fibreMiddleAnswer(double drag_along_fibre, const Eigen::Vector3d& carried, double tie = 0.0,
-                                  const Eigen::Vector3d& rest_carried = Eigen::Vector3d(1, 0, 0)) {
+                                  const Eigen::Vector3d& rest_carried = Eigen::Vector3d(1, 0, 0),
+                                  const Eigen::Vector3d& balance = Eigen::Vector3d::Zero()) {
   BlockDescentSettings settings;
   settings.tissue_relaxation_s = 0.005;
   settings.drag_along_fibre = drag_along_fibre;
   settings.across_fibre_tie = tie;
+  settings.balance_rest_shape = balance.squaredNorm() > 0;
   const MassSpringSystem system = threeParticleFibre();
   BlockDescentSolver solver(system, settings);
   solver.setFrameInterval(0.01);
@@ -337,6 +340,8 @@ Eigen::Vector3d fibreMiddleAnswer(double drag_along_fibre, const Eigen::Vector3d
   state.carried_position.col(1) = carried;
   state.rest_carried_position = state.position;
   state.rest_carried_position.col(1) = rest_carried;
+  state.rest_balance_force = Eigen::Matrix3Xd::Zero(3, 3);
+  state.rest_balance_force.col(1) = balance;
   const SolveStats stats = solver.solve(state, converging(500, 1e-12));
   EXPECT_TRUE(stats.converged) << "drag_along_fibre " << drag_along_fibre << ", tie " << tie;
   EXPECT_LT(solver.residualOf(state), 1e-10);
@@ -432,14 +437,16 @@ TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtR
   system.is_fixed[0] = system.is_fixed[kParticles - 1] = 1;
   system.springs.rest_length *= 0.8;
   const double sagitta = arc(1, kParticles / 2);
-  const auto heldStill = [&](double tie, int frames, double& last_change) {
+  const auto heldStill = [&](double tie, int frames, double& last_change, bool balanced = false) {
     BlockDescentSettings settings;
     settings.tissue_relaxation_s = 0.001;
     settings.across_fibre_tie = tie;
+    settings.balance_rest_shape = balanced;
     BlockDescentSolver solver(system, settings);
     solver.setFrameInterval(1.0 / 60.0);
     ParticleState state = stateAt(system.rest_position);
     state.rest_carried_position = system.rest_position;
+    state.rest_balance_force = restBalanceForces(system);
     for (int frame = 0; frame < frames; ++frame) {
       const Eigen::Matrix3Xd before = state.position;
       state.carried_position = state.position;
@@ -456,6 +463,73 @@ TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtR
   EXPECT_LT(untied, 0.3 * sagitta) << "the untied fibre creeps towards its chord";
   EXPECT_GT(tied, 0.5 * sagitta) << "the tie holds the belly near its shape";  // 0.70 of it measured
   EXPECT_LT(tied_change, 1e-9) << "and it has stopped moving";
+  // With the rest balance the arc is the equilibrium: it does not move at all.
+  double balanced_change = 0;
+  const double balanced = heldStill(0.03, 100, balanced_change, true);
+  EXPECT_NEAR(balanced, sagitta, 1e-12);
+  EXPECT_LT(balanced_change, 1e-14);
+}
+
+TEST(BlockDescent, TheRestBalanceIsTheSpringsPullAtRestReversed) {
+  // The pre-tensioned arc of the test above: each free particle's balance points away from the arc's centre (the
+  // tension's pull towards the chord reversed), 2 T sin(half the angle between segments) with T = k (l - l0).
+  constexpr int kParticles = 9;
+  Eigen::Matrix3Xd arc = Eigen::Matrix3Xd::Zero(3, kParticles);
+  ParticlePairs springs;
+  for (int i = 0; i < kParticles; ++i) {
+    const double angle = -0.6 + 1.2 * i / (kParticles - 1);
+    arc.col(i) << 0.1 * std::sin(angle), 0.1 * std::cos(angle), 0;
+  }
+  for (int i = 0; i + 1 < kParticles; ++i) springs.emplace_back(i, i + 1);
+  MassSpringSystem system = systemFromParticles(arc, springs, 1e-3, 10.0);
+  system.is_fixed[0] = system.is_fixed[kParticles - 1] = 1;
+  system.springs.rest_length *= 0.8;
+  const Eigen::Matrix3Xd balance = restBalanceForces(system);
+  const double segment = (arc.col(1) - arc.col(0)).norm();
+  const double tension = system.springs.stiffness[0] * (segment - system.springs.rest_length[0]);
+  const double expected = 2.0 * tension * std::sin(0.5 * 1.2 / (kParticles - 1));
+  for (int i = 1; i + 1 < kParticles; ++i) {
+    EXPECT_NEAR(balance.col(i).norm(), expected, 1e-9 * expected) << "particle " << i;
+    EXPECT_NEAR(balance.col(i).normalized().dot(arc.col(i).normalized()), 1.0, 1e-12) << "outwards, particle " << i;
+  }
+  EXPECT_EQ(balance.col(0).norm(), 0.0);  // fixed
+}
+
+TEST(BlockDescent, TheRestBalanceIsAConstantForceOnTheParticleAlongAndAcrossItsFibre) {
+  // The three-particle fibre's middle particle (drag 1 N/m, the tie 1 N/m across) with a balance force b: the balance of
+  // forces, solved independently, is the one without b with the carried position moved by b / (drag weight) across
+  // (balancedAcross), and along the fibre a (c - 1) + b - 2 (x - 1) = 0.
+  for (const double a : {1.0, 0.25}) {
+    const Eigen::Vector3d x = fibreMiddleAnswer(a, Eigen::Vector3d(1, 0, 0), 0.5, Eigen::Vector3d(1, 0, 0),
+                                                Eigen::Vector3d(0.2, 0, 0));
+    EXPECT_NEAR(x.x() - 1.0, 0.2 / (2.0 + a), 1e-9) << "drag_along_fibre " << a;
+    EXPECT_NEAR(x.tail<2>().norm(), 0.0, 1e-12);
+    const Eigen::Vector3d across = fibreMiddleAnswer(a, Eigen::Vector3d(1, 0.05, 0), 0.5, Eigen::Vector3d(1, 0, 0),
+                                                     Eigen::Vector3d(0, 0.1, 0));
+    EXPECT_NEAR(across.y(), balancedAcross(0.15, 1.0, 0.0), 1e-9) << "drag_along_fibre " << a;
+    EXPECT_NEAR(across.x(), 1.0, 1e-9);
+  }
+}
+
+TEST(BlockDescent, TheRestBalanceNeedsADragAlongTheFibreToRideOn) {
+  BlockDescentSettings settings;
+  settings.tissue_relaxation_s = 0.001;
+  settings.across_fibre_tie = 0.03;
+  settings.balance_rest_shape = true;
+  EXPECT_TRUE(validate(settings).empty());
+  settings.drag_along_fibre = 0.0;
+  EXPECT_NE(validate(settings).find("balance_rest_shape"), std::string::npos);
+  settings.across_fibre_tie = 0.0;  // without the tie the balance is not used
+  EXPECT_TRUE(validate(settings).empty());
+  // Tied and balanced, a state without the balance forces is refused.
+  settings.across_fibre_tie = 0.03;
+  settings.drag_along_fibre = 1.0;
+  const MassSpringSystem system = threeParticleFibre();
+  BlockDescentSolver solver(system, settings);
+  ParticleState state = stateAt(system.rest_position);
+  state.carried_position = state.position;
+  state.rest_carried_position = state.position;
+  EXPECT_THROW(solver.solve(state, converging(10, 1e-9)), std::invalid_argument);
 }
 
 TEST(BlockDescent, SweepCostCountsWhatEachParticleSpringAndContactMoves) {

@@ -628,6 +628,34 @@ TEST(WarmStart, MovesOnlyTheAttachmentsAndKeepsTheFreeParticles) {
   }
 }
 
+TEST(RigidPretransform, RestVectorsTurnWithTheBlendOfTheirBonesRotations) {
+  const SmallScene scene = spindleBetweenPlates();
+  const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());
+  const Eigen::Index n = system.particleCount();
+  const Eigen::Matrix3Xd vectors = Eigen::Matrix3Xd::Random(3, n);
+  // One motion for both bones: every vector turns with its rotation, and the translation does not move it.
+  const Eigen::Isometry3d motion = Eigen::Translation3d(0.1, -0.2, 0.05) *
+                                   Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized());
+  const Eigen::Matrix3Xd turned = carryRestVectors(system, {motion, motion}, vectors);
+  EXPECT_LT((turned - motion.linear() * vectors).cwiseAbs().maxCoeff(), 1e-12);
+  // Two bones turned differently: each particle's vector takes the weighted sum of the rotations, as positions blend.
+  const Eigen::Isometry3d lower(Eigen::AngleAxisd(-0.4, Eigen::Vector3d::UnitX()));
+  const Eigen::Isometry3d upper(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitX()));
+  const Eigen::Matrix3Xd blended = carryRestVectors(system, {lower, upper}, vectors);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    Eigen::Matrix3d expected = Eigen::Matrix3d::Zero();
+    double weights = 0;
+    for (int k = 0; k < MassSpringSystem::kBlendBones; ++k) {
+      const int bone = system.blend_bone(k, i);
+      if (bone == kNoBone) continue;
+      expected += system.blend_weight(k, i) * (bone == 0 ? lower : upper).linear();
+      weights += system.blend_weight(k, i);
+    }
+    EXPECT_LT((blended.col(i) - expected * vectors.col(i) / weights).norm(), 1e-12) << "particle " << i;
+  }
+  EXPECT_THROW(carryRestVectors(system, {motion, motion}, Eigen::Matrix3Xd::Zero(3, n - 1)), std::invalid_argument);
+}
+
 TEST(RigidPretransform, TooFewBoneTransformsIsAnError) {
   const SmallScene scene = spindleBetweenPlates();
   const MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, smallSettings());

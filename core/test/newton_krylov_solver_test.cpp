@@ -109,6 +109,36 @@ TEST(NewtonKrylov, TheAcrossFibreTieMatchesBlockDescentsAnswer) {
   EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);  // the tie takes part
 }
 
+TEST(NewtonKrylov, TheRestBalanceMatchesBlockDescentsAnswer) {
+  // The tie's test above with a rest balance force on the middle particle, off along and across the fibre.
+  const MassSpringSystem system = threeParticleFibre();
+  BlockDescentSettings energy;
+  energy.tissue_relaxation_s = 0.005;
+  energy.drag_along_fibre = 0.25;
+  energy.across_fibre_tie = 1.0;
+  energy.balance_rest_shape = true;
+  ParticleState start = stateAt(system.rest_position);
+  start.carried_position = start.position;
+  start.carried_position.col(1) = Eigen::Vector3d(1.1, 0.2, 0);
+  start.rest_carried_position = start.position;
+  start.rest_balance_force = Eigen::Matrix3Xd::Zero(3, 3);
+  start.rest_balance_force.col(1) = Eigen::Vector3d(0.3, -0.2, 0.1);
+  ParticleState newton = start, sweeps = start;
+  NewtonKrylovSolver solver(system, energy, {});
+  solver.setFrameInterval(0.01);
+  EXPECT_TRUE(solver.solve(newton, converging(100, 1e-8)).converged);
+  BlockDescentSolver reference(system, energy);
+  reference.setFrameInterval(0.01);
+  EXPECT_TRUE(reference.solve(sweeps, converging(2000, 1e-12)).converged);
+  EXPECT_LT((newton.position.col(1) - sweeps.position.col(1)).norm(), 1e-8);
+  energy.balance_rest_shape = false;
+  BlockDescentSolver unbalanced(system, energy);
+  unbalanced.setFrameInterval(0.01);
+  ParticleState without = start;
+  EXPECT_TRUE(unbalanced.solve(without, converging(2000, 1e-12)).converged);
+  EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);  // the balance takes part
+}
+
 TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {
   // The synthetic thigh after a warm pose change, with contacts and the node's tissue drag: both solvers converged to
   // a tight force residual from the same start end in the same state.

@@ -54,8 +54,9 @@ struct ThighAtNodeSettings {
     return stopping;
   }
   Pose hipFlexion(double angle_rad) const { return poseFor(thigh, {{"hip_flexion_r", angle_rad}}); }
-  MuscleSimulation simulation() const {
-    return MuscleSimulation(thigh.scene.muscles, thigh.scene.bones, node.pipeline.simulation, node.pipeline.threads);
+  MuscleSimulation simulation() const { return simulation(node.pipeline.simulation); }
+  MuscleSimulation simulation(const SimulationSettings& settings) const {
+    return MuscleSimulation(thigh.scene.muscles, thigh.scene.bones, settings, node.pipeline.threads);
   }
 };
 ThighAtNodeSettings thighAtNodeSettings() {
@@ -212,7 +213,12 @@ TEST(Simulation, AStreamHeldNearlyStillStaysAtItsAnswerWithOneSweepAFrame) {
 TEST(Simulation, AWarmFrameWhoseResidualIsFarAboveTheStreamsGetsCatchUpSweepsWithinItsCap) {
   // The bundled thigh muscles at the node's settings, one sweep a frame (a zero budget), deep-contact sweeps off: hip
   // flexion in small steps sets the stream's typical residual; a 0.3 rad step then leaves a residual far above it.
+  // The predicted start carries on only the correction, not its trend: with the trend the residual of these smooth
+  // steps varies frame to frame by more than the rule's ratio (0.03-0.10, and 0.25 at the 11th step, which the rule
+  // then rightly catches up), and the test is about the rule, not the prediction.
   const ThighAtNodeSettings scene = thighAtNodeSettings();
+  SimulationSettings without_trend = scene.node.pipeline.simulation;
+  without_trend.prediction.predict_extrapolation = 0;
   FrameStopping stopping = scene.oneSweep();
   stopping.catch_up_residual_ratio = 3.0;
   const auto hipFlexion = [&](double angle_rad) { return scene.hipFlexion(angle_rad); };
@@ -223,7 +229,7 @@ TEST(Simulation, AWarmFrameWhoseResidualIsFarAboveTheStreamsGetsCatchUpSweepsWit
   const auto run = [&](int catch_up_sweeps) {
     FrameStopping chosen = stopping;
     chosen.catch_up_sweeps = catch_up_sweeps;
-    MuscleSimulation simulation = scene.simulation();
+    MuscleSimulation simulation = scene.simulation(without_trend);
     Frames frames;
     solvePose(simulation, hipFlexion(0), StartMode::cold, chosen);
     for (int k = 1; k <= 12; ++k)

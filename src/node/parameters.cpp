@@ -179,6 +179,11 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
                                 toString(simulation.solver_kind) + ")");
   if (core.stream.auto_resolution && stopping.rule != StoppingRule::time_budget)
     p.fail("auto_resolution", "fits the model to time_budget_ms: it needs stopping_rule time_budget");
+  // The tie shares the tissue drag's frame anchor (block_descent_solver.hpp), so the model cannot be built with one and
+  // not the other: refused here, naming the parameter, rather than when the scene is built.
+  const BlockDescentSettings& block_descent = simulation.block_descent;
+  if (block_descent.across_fibre_tie > 0 && !(block_descent.tissue_relaxation_s > 0))
+    p.fail("across_fibre_tie", "needs the tissue drag (tissue_relaxation_s > 0): the tie shares its frame anchor");
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
   if (simulation.solver_kind == SolverKind::local_global)

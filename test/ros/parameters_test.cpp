@@ -178,6 +178,12 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
   EXPECT_EQ(errorOf({{"auto_resolution", XmlRpc::XmlRpcValue(true)}}), "");  // the default rule is time_budget
   EXPECT_EQ(errorOf({{"auto_resolution", XmlRpc::XmlRpcValue(std::string("yes"))}}),
             prefix + "auto_resolution has the wrong type");
+  EXPECT_EQ(errorOf({{"across_fibre_tie", XmlRpc::XmlRpcValue(0.03)}, {"tissue_relaxation_s", XmlRpc::XmlRpcValue(0.0)}}),
+            prefix + "across_fibre_tie needs the tissue drag (tissue_relaxation_s > 0): the tie shares its frame anchor");
+  EXPECT_EQ(errorOf({{"across_fibre_tie", XmlRpc::XmlRpcValue(0.03)}, {"tissue_relaxation_s", XmlRpc::XmlRpcValue(0.001)}}),
+            "");
+  EXPECT_EQ(errorOf({{"across_fibre_tie", XmlRpc::XmlRpcValue(0.0)}, {"tissue_relaxation_s", XmlRpc::XmlRpcValue(0.0)}}),
+            "");
   const std::string replaced = errorOf({{"reset_translation_m", XmlRpc::XmlRpcValue(0.1)}});
   EXPECT_EQ(replaced.rfind(prefix + "reset_translation_m no longer exists", 0), 0u) << replaced;
   EXPECT_NE(replaced.find("max_bone_speed_m_per_s"), std::string::npos) << replaced;

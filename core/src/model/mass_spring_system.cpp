@@ -112,4 +112,23 @@ Eigen::Matrix3Xd fibreDirections(const MassSpringSystem& system, const Eigen::Ma
   return direction;
 }
 
+Eigen::Matrix3Xd restBalanceForces(const MassSpringSystem& system) {
+  const Eigen::Index n = system.particleCount();
+  Eigen::Matrix3Xd balance = Eigen::Matrix3Xd::Zero(3, n);
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
+    const Eigen::Vector3d d = system.rest_position.col(b) - system.rest_position.col(a);
+    const double length = d.norm();
+    if (!(length > 0)) continue;
+    const auto e = static_cast<Eigen::Index>(s);
+    // The spring pulls a towards b with k (l - l0); the balance is the opposite.
+    const Eigen::Vector3d pull = system.springs.stiffness[e] * (length - system.springs.rest_length[e]) / length * d;
+    balance.col(a) -= pull;
+    balance.col(b) += pull;
+  }
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (system.is_fixed[static_cast<std::size_t>(i)]) balance.col(i).setZero();
+  return balance;
+}
+
 }  // namespace muscle_deformation

@@ -40,6 +40,29 @@ void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& tra
   state.previous_position = state.position;
 }
 
+Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTransforms& transforms,
+                                  const Eigen::Matrix3Xd& rest_vectors) {
+  checkTransforms(system, transforms);
+  const Eigen::Index n = system.particleCount();
+  if (rest_vectors.cols() != n)
+    throw std::invalid_argument("carryRestVectors: " + std::to_string(rest_vectors.cols()) + " vectors for " +
+                                std::to_string(n) + " particles");
+  Eigen::Matrix3Xd carried(3, n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    Eigen::Matrix3d blended = Eigen::Matrix3d::Zero();
+    double weight_sum = 0;
+    for (int k = 0; k < MassSpringSystem::kBlendBones; ++k) {
+      const int bone = system.blend_bone(k, i);
+      if (bone == kNoBone) continue;
+      blended += system.blend_weight(k, i) * transforms[bone].linear();
+      weight_sum += system.blend_weight(k, i);
+    }
+    carried.col(i) = weight_sum > 0 ? Eigen::Vector3d(blended * rest_vectors.col(i) / weight_sum)
+                                    : Eigen::Vector3d(rest_vectors.col(i));
+  }
+  return carried;
+}
+
 void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_transforms,
                const BoneTransforms& transforms, ParticleState& state) {
   checkTransforms(system, transforms);

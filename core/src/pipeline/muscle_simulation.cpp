@@ -109,6 +109,7 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
         collision_->everyParticleCollides());
   state_ = restState(system_);
   median_collision_radius_m_ = system_.medianCollisionRadius();
+  if (solver_->balancesRestShape()) rest_balance_ = restBalanceForces(system_);
 }
 
 void MuscleSimulation::reset() { has_previous_ = false; }
@@ -244,6 +245,10 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   } else {
     state_.rest_carried_position.resize(3, 0);
   }
+  if (drag && solver_->balancesRestShape())
+    state_.rest_balance_force = carryRestVectors(system_, transforms, rest_balance_);
+  else
+    state_.rest_balance_force.resize(3, 0);
   solver_->setFrameInterval(stats.warm_started ? frame_interval_s : kNominalFrameIntervalS);
 
   // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed

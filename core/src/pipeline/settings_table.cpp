@@ -115,6 +115,10 @@ std::vector<SettingSpec> buildTable() {
              "carry its rest position, with this x its summed spring stiffness (0 = none; needs the tissue drag): "
              "holds a pre-tensioned belly's shape and leaves its fibres free to lengthen",
              [block_descent](CoreSettings& s) -> double& { return block_descent(s).across_fibre_tie; }),
+      boolean("balance_rest_shape",
+              "block_descent / newton_krylov, with across_fibre_tie: the tie also bears the force that holds the "
+              "segmented shape in balance at rest (a pre-tensioned belly's pull), so the rest pose is an equilibrium",
+              [block_descent](CoreSettings& s) -> bool& { return block_descent(s).balance_rest_shape; }),
       number("volume_stiffness", "", 0.0, 1e9,
              "block_descent / newton_krylov: incompressibility, each muscle's skinned volume kept by a term of the "
              "frame energy (0 = none); a relative volume change e pulls each skin particle with about this x e of the "
@@ -312,7 +316,9 @@ CoreSettings nodeDefaultSettings() {
   // The smallest tissue drag of those measured that keeps one predicted sweep per frame within 1 mm RMS of the
   // converged stream (all 26 bundled muscles, 30 gait frames, 150-sweep references): 0.25 ms 1.11 mm, 0.5 ms 0.61 mm,
   // 1 ms 0.31 mm. Without drag the frame has no unique answer to measure against (see block_descent_solver.hpp).
-  settings.pipeline.simulation.block_descent.tissue_relaxation_s = 0.0005;
+  // With the belly soft across its fibres (below) its summed stiffness is smaller, and 0.5 ms lags 1.37 mm; 1 ms keeps
+  // 0.63 mm (all 26, one sweep a frame, docs/lengths.md).
+  settings.pipeline.simulation.block_descent.tissue_relaxation_s = 0.001;
   // One: on thigh13 a warm frame from rest to 90 deg hip flexion ends 1.71 mm deep after its budget's one sweep,
   // 0.19 mm after a second (12.4 ms in all); the bundled gait never asks for it.
   settings.stream.stopping.deep_contact_sweeps = 1;
@@ -332,6 +338,17 @@ CoreSettings nodeDefaultSettings() {
   // of their length bring 16 of 24 muscles' belly lengths to r >= 0.8 against gait2392 (14 with the belly's material);
   // 100 overshoots and oscillates at one sweep a frame (rectus femoris excursion x2.6).
   settings.pipeline.simulation.model.tendon_stiffness_ratio = 10.0;
+  // A belly under passive tension, ~50x softer across its fibres than along them, held across its fibres where the bones
+  // carry its rest shape, its rest in balance (below; docs/lengths.md, 1-cycle gait against gait2392, 2026-11-28): of
+  // 24 muscles 18 at r >= 0.8 and 10 at r >= 0.9 streamed, 3 meeting the whole length target (15 at r >= 0.9 and 4
+  // converged), against 16, 8 and 2 (12 and 4) with the isotropic, untensioned belly, and half the folded fibres; without
+  // the tie the pre-tensioned belly creeps towards its fibres' chords (8.4 mm RMS at rest after 600 frames).
+  settings.pipeline.simulation.model.fibre_prestretch = 0.2;
+  settings.pipeline.simulation.model.transverse_stiffness_ratio = 0.02;
+  settings.pipeline.simulation.block_descent.across_fibre_tie = 0.03;
+  // The tie bears the pre-tension's pull at rest, so that the segmented shape is the rest pose's equilibrium: without
+  // it a cold start settled for a hundred frames and more (thigh13 at rest: 2.7 mm RMS, 18 mm at most).
+  settings.pipeline.simulation.block_descent.balance_rest_shape = true;
   // Incompressibility in the model (config/muscle_deformation.yaml has the measurements, fidelity bench, all 26 muscles,
   // one sweep a frame, 2026-11-27): the skinned surface before the volume projection within 2.0 % of its rest volume in
   // every muscle and frame of the gait (24.3 % without the term, 13.2 % with the penalty alone) and 3.0 % in hip flexion

@@ -185,6 +185,8 @@ std::string validate(const BlockDescentSettings& settings) {
     return "across_fibre_tie must be a finite number >= 0";
   if (settings.across_fibre_tie > 0 && !(settings.tissue_relaxation_s > 0))
     return "across_fibre_tie needs the tissue drag (tissue_relaxation_s > 0): the tie shares its frame anchor";
+  if (settings.across_fibre_tie > 0 && settings.balance_rest_shape && !(settings.drag_along_fibre > 0))
+    return "balance_rest_shape needs drag_along_fibre > 0: the balance along the fibre rides on the drag there";
   return {};
 }
 
@@ -448,6 +450,21 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
     Eigen::Vector3d towards_rest = state.rest_carried_position.col(p) - carried.col(p);
     towards_rest -= t.dot(towards_rest) * t;
     merged.col(p) += tie_share_ * towards_rest;
+  }
+  if (balancesRest()) {
+    if (state.rest_balance_force.cols() != carried.cols())
+      throw std::invalid_argument("block descent: balance_rest_shape needs state.rest_balance_force (" +
+                                  std::to_string(state.rest_balance_force.cols()) + " columns for " +
+                                  std::to_string(carried.cols()) + " particles)");
+    // A constant force b is the energy -b^T x; with the quadratic W about m it is W about m + W^-1 b, up to a constant.
+    // W^-1 = ((I - t t^T) + t t^T / a') / w, a' > 0 (validated).
+    for (const std::int32_t p : free_particles_) {
+      if (!(drag_weight_[p] > 0)) continue;
+      const Eigen::Vector3d t = drag_direction_.col(p);
+      const Eigen::Vector3d b = state.rest_balance_force.col(p);
+      const double along = t.dot(b);
+      merged.col(p) += (b - along * t + (along / drag_along_) * t) / drag_weight_[p];
+    }
   }
   return merged;
 }

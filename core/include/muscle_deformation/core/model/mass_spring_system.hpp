@@ -84,7 +84,15 @@ struct ParticleState {
   // Where the bones carry the rest shape this frame (the rigid pre-transform of the rest positions): the anchor of
   // block descent's across-fibre tie (BlockDescentSettings::across_fibre_tie); empty without one.
   Eigen::Matrix3Xd rest_carried_position = Eigen::Matrix3Xd(3, 0);
+  // The force that holds the rest shape in balance (restBalanceForces), turned with the bones this frame (N): the
+  // tie's constant part (BlockDescentSettings::balance_rest_shape); empty without one.
+  Eigen::Matrix3Xd rest_balance_force = Eigen::Matrix3Xd(3, 0);
 };
+
+// The force on each free particle that balances its springs (tendons included) at the rest positions: the springs'
+// net force there, reversed (N; zero on fixed particles). Zero for springs at their rest length; a pre-tensioned belly
+// (SpringSet::prestretch_factor) has it where its fibres curve and where they meet their tendons.
+Eigen::Matrix3Xd restBalanceForces(const MassSpringSystem& system);
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
 // anchors left out.

@@ -14,6 +14,11 @@ namespace muscle_deformation {
 // exactly with their bone); previous = current, i.e. the solve starts at rest.
 void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state);
 
+// Vectors given per particle in the rest frame (a force, a direction) turned as the rigid pre-transform turns each
+// particle's neighbourhood: by the blend of its bones' rotations (a plain weighted sum, as the positions are blended).
+Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTransforms& transforms,
+                                  const Eigen::Matrix3Xd& rest_vectors);
+
 // Warm start from the previous result: the fixed (attached) particles go exactly to their bones; each free particle
 // keeps its previous shape but moves with the blend of its bones' motion since the previous pose
 // (new * previous^-1), so that only the change of shape is left to the solver, not the bones' travel. Velocities are

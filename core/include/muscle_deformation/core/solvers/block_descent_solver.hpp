@@ -80,6 +80,14 @@ struct BlockDescentSettings {
   // holds the belly's cross-section where the anatomy has it and leaves the fibre free to lengthen and shorten. Rides
   // on the tissue drag (needs tissue_relaxation_s > 0, whose frame anchor it shares). 0 = none.
   double across_fibre_tie = 0.0;
+  // With the tie: the tie also carries the force that holds the rest shape in balance (state.rest_balance_force, the
+  // springs' net force at rest reversed, turned with the bones). A pre-tensioned belly is not at rest in its segmented
+  // shape: its curved fibres pull towards their chords and its fibre ends pull their tendons, so after a cold start it
+  // settled for a hundred frames and more (thigh13: 2.7 mm RMS, 18 mm at most, at rest). In the body the surrounding
+  // tissue bears that load; a constant force has no stiffness, so the model's response to a joint's motion is the same
+  // with it and the segmented shape is the rest pose's equilibrium. Merged into the drag's anchor like the tie (which
+  // needs drag_along_fibre > 0 for the part along the fibre). Ignored without the tie.
+  bool balance_rest_shape = false;
   // Incompressibility: each muscle's volume term (volume_term.hpp) has stiffness k_m = volume_stiffness x material
   // constant x (skin particles) / (rest volume x rest skin area), so that a relative volume change e pulls each particle
   // the skin follows with about volume_stiffness x e of the springs' material constant. 0 = none (the seeds' model);
@@ -139,6 +147,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   bool solvesContacts() const override { return true; }
   bool dragsTissue() const override { return settings_.tissue_relaxation_s > 0; }
   bool tiesToRestShape() const override { return tiesAcrossFibres(); }
+  bool balancesRestShape() const override { return balancesRest(); }
   // The muscles' volume term (volume_term.hpp) joins the frame energy: evaluated before every sweep, each particle's
   // step takes its muscle's volume as it stands after the colours before it.
   bool keepsVolume() const override { return true; }
@@ -262,7 +271,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   // w (I - (1 - a) t t^T) about the carried position c plus tau (I - t t^T) about the rest carried by the bones h is,
   // up to a constant, (w + tau)(I - (1 - a') t t^T) about m = c + tau / (w + tau) (I - t t^T)(h - c), with
   // a' = w a / (w + tau). drag_weight_ and drag_along_ are the combined weight and share, drag_anchor_ points at m when
-  // the tie is on (tied_anchor_), at c otherwise.
+  // the tie is on (tied_anchor_), at c otherwise. The rest balance b (a constant force, energy -b^T x) moves that
+  // anchor by W^-1 b with W = (w + tau)(I - (1 - a') t t^T), up to a constant.
   Eigen::VectorXd drag_weight_;           // per particle for the current frame interval, N/m (0 for fixed ones)
   double drag_along_ = 1.0;               // the combined share along the fibre (settings' drag_along_fibre untied)
   double tie_share_ = 0.0;                // tau / (w + tau): the tie's share of the merged anchor (0 untied)
@@ -274,6 +284,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   Eigen::Matrix3Xd drag_direction_;
   bool anisotropicDrag() const { return drag_along_ < 1.0; }
   bool tiesAcrossFibres() const { return settings_.across_fibre_tie > 0; }  // validated: only with the drag
+  bool balancesRest() const { return tiesAcrossFibres() && settings_.balance_rest_shape; }
   // drag_direction_ from the fibres at `anchor` (nothing when the drag is isotropic).
   void updateDragDirections(const Eigen::Matrix3Xd& anchor);
   // The frame's drag anchor: `carried` (the state's carried positions, or its entry positions without them), or with the

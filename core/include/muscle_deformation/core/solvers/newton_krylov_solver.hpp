@@ -43,6 +43,7 @@ class NewtonKrylovSolver final : public SoftBodySolver {
   bool solvesContacts() const override { return true; }
   bool dragsTissue() const override { return energy_.dragsTissue(); }
   bool tiesToRestShape() const override { return energy_.tiesToRestShape(); }
+  bool balancesRestShape() const override { return energy_.balancesRestShape(); }
   bool keepsVolume() const override { return true; }
   void restLengthsChanged() override { energy_.restLengthsChanged(); }
   void setVolumeTerm(VolumeTerm term) override { energy_.setVolumeTerm(std::move(term)); }

@@ -55,6 +55,9 @@ class SoftBodySolver {
   // Whether the solve ties particles to where the bones carry their rest positions (state.rest_carried_position, which
   // the simulation then sets every frame).
   virtual bool tiesToRestShape() const { return false; }
+  // Whether the tie also carries the force that holds the rest shape in balance (state.rest_balance_force, which the
+  // simulation then sets every frame).
+  virtual bool balancesRestShape() const { return false; }
   // Solvers that minimise a frame energy take the muscles' volume term into it (volume_term.hpp); the others ignore it
   // and say so here.
   virtual bool keepsVolume() const { return false; }
