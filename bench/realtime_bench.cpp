@@ -84,6 +84,9 @@ Setup setupFor(const CoreSettings& node, const Config& config) {
   settings.local_global.lbfgs_history = config.lbfgs_history;
   setup.pipeline.threads = config.threads;
   if (config.tissue_relaxation_s >= 0) settings.block_descent.tissue_relaxation_s = config.tissue_relaxation_s;
+  // The across-fibre tie rides on the drag (it shares its frame anchor): a configuration without the drag has no tie
+  // either, as the former default had neither.
+  if (!(settings.block_descent.tissue_relaxation_s > 0)) settings.block_descent.across_fibre_tie = 0;
   settings.prediction.predict_start = config.predict_start;
   return setup;
 }
@@ -127,17 +130,28 @@ BlockDescentSolver yardstickFor(const DeformationPipeline& pipeline, const Block
   return yardstick;
 }
 
-// One solved frame or pose against its reference. `carried`: where the tissue carried the particles in this frame
-// (the reference's own problem, whatever the configuration solved).
+// What the reference's frame was given besides the bones: where the tissue carried the particles and, with the
+// across-fibre tie, where the bones carried the rest shape and the rest balance turned with them (the reference's own
+// problem, whatever the configuration solved; empty where the model has none).
+struct FrameInputs {
+  Eigen::Matrix3Xd carried, rest_carried, rest_balance;
+  static FrameInputs of(const ParticleState& state) {
+    return {state.carried_position, state.rest_carried_position, state.rest_balance_force};
+  }
+};
+
+// One solved frame or pose against its reference, its residual judged on the reference's frame inputs.
 Measured measured(const DeformationPipeline& pipeline, const FrameStats& stats, const Eigen::Matrix3Xd& reference,
-                  const Eigen::Matrix3Xd& carried, BlockDescentSolver& yardstick) {
+                  const FrameInputs& inputs, BlockDescentSolver& yardstick) {
   Measured m;
   m.frame_ms = stats.solver.total_ms;
   m.rms_mm = bench::rmsMillimetres(pipeline.state().position, reference);
   m.bone_penetration_mm = stats.collision.max_penetration_muscle_bone_m * 1e3;
   m.iterations = stats.solver.iterations;
   ParticleState judged = pipeline.state();
-  judged.carried_position = carried;
+  judged.carried_position = inputs.carried;
+  judged.rest_carried_position = inputs.rest_carried;
+  judged.rest_balance_force = inputs.rest_balance;
   m.residual = yardstick.residualOf(judged);
   if (pipeline.settings().simulation.solver_kind == SolverKind::block_descent && stats.solver.iterations > 0) {
     m.sweep_ms = stats.solver.mss_ms / stats.solver.iterations;
@@ -315,7 +329,8 @@ int main(int argc, char** argv) {
     reference_config.label = "reference";
     const Setup reference_setup = setupFor(node, reference_config);
     const SimulationSettings& reference_settings = reference_setup.simulation();
-    std::vector<Eigen::Matrix3Xd> reference, carried;
+    std::vector<Eigen::Matrix3Xd> reference;
+    std::vector<FrameInputs> carried;
     std::vector<BoneTransforms> transforms;
     std::vector<double> reference_residuals;
     double reference_moves_mm = 0;  // largest RMS between a reference frame and the same frame given twice the sweeps
@@ -330,7 +345,7 @@ int main(int argc, char** argv) {
         simulation->solve(transforms.back(), f == 0 ? StartMode::cold : StartMode::warm, reference_setup.stopping,
                           false, false);
         reference.push_back(simulation->state().position);
-        carried.push_back(simulation->state().carried_position);
+        carried.push_back(FrameInputs::of(simulation->state()));
         reference_residuals.push_back(yardstick.residualOf(simulation->state()));
       }
       // How settled the references are: a few frames given as many sweeps again, and the same frames solved from the
@@ -455,7 +470,8 @@ int main(int argc, char** argv) {
     // ----- cold single poses -----
     const std::vector<std::size_t> poses = options.quick ? std::vector<std::size_t>{fiveGaitFrames(bundled)[2]}
                                                          : fiveGaitFrames(bundled);
-    std::vector<Eigen::Matrix3Xd> cold_reference, cold_carried;
+    std::vector<Eigen::Matrix3Xd> cold_reference;
+    std::vector<FrameInputs> cold_carried;
     {
       const Setup setup = setupFor(node, blockDescent(2 * reference_sweeps, 0));
       const std::unique_ptr<DeformationPipeline> simulation = pipelineFor(bundled, setup);
@@ -465,7 +481,7 @@ int main(int argc, char** argv) {
         simulation->solve(boneTransformsOf(simulation->bones(), gaitPose(bundled, f)), StartMode::cold, setup.stopping,
                           false, false);
         cold_reference.push_back(simulation->state().position);
-        cold_carried.push_back(simulation->state().carried_position);
+        cold_carried.push_back(FrameInputs::of(simulation->state()));
         residuals.push_back(yardstick.residualOf(simulation->state()));
       }
       records.begin();
