@@ -420,23 +420,32 @@ TEST(BlockDescent, TheAcrossFibreTieIsRefusedWithoutTheDragAndWithoutTheRestItTi
   EXPECT_THROW(solver.solve(state, converging(10, 1e-9)), std::invalid_argument);
 }
 
-TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtRest) {
-  // A fibre of 9 particles on an arc (radius 0.1 m, 1.2 rad, sagitta 17.5 mm), ends fixed, its springs' rest lengths
-  // 0.8 of their length (pre-tension). Held still and solved one sweep a frame with the drag anchored where the frame
-  // before ended (the stream at rest), the tension pulls the belly towards its chord and the drag only slows that; the
-  // tie stops it where its pull across balances the tension's.
-  constexpr int kParticles = 9;
-  Eigen::Matrix3Xd arc = Eigen::Matrix3Xd::Zero(3, kParticles);
+namespace {
+// A fibre of kArcParticles particles on an arc (radius 0.1 m about (0, -centre_drop), 1.2 rad), ends fixed, its
+// springs' rest lengths 0.8 of their length: a pre-tensioned curved belly.
+constexpr int kArcParticles = 9;
+MassSpringSystem preTensionedArc(double centre_drop) {
+  Eigen::Matrix3Xd arc = Eigen::Matrix3Xd::Zero(3, kArcParticles);
   ParticlePairs springs;
-  for (int i = 0; i < kParticles; ++i) {
-    const double angle = -0.6 + 1.2 * i / (kParticles - 1);
-    arc.col(i) << 0.1 * std::sin(angle), 0.1 * (std::cos(angle) - std::cos(0.6)), 0;
+  for (int i = 0; i < kArcParticles; ++i) {
+    const double angle = -0.6 + 1.2 * i / (kArcParticles - 1);
+    arc.col(i) << 0.1 * std::sin(angle), 0.1 * std::cos(angle) - centre_drop, 0;
   }
-  for (int i = 0; i + 1 < kParticles; ++i) springs.emplace_back(i, i + 1);
+  for (int i = 0; i + 1 < kArcParticles; ++i) springs.emplace_back(i, i + 1);
   MassSpringSystem system = systemFromParticles(arc, springs, 1e-3, 10.0);
-  system.is_fixed[0] = system.is_fixed[kParticles - 1] = 1;
+  system.is_fixed[0] = system.is_fixed[kArcParticles - 1] = 1;
   system.springs.rest_length *= 0.8;
-  const double sagitta = arc(1, kParticles / 2);
+  return system;
+}
+}  // namespace
+
+TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtRest) {
+  // The pre-tensioned arc, its chord on y = 0 (sagitta 17.5 mm). Held still and solved one sweep a frame with the drag
+  // anchored where the frame before ended (the stream at rest), the tension pulls the belly towards its chord and the
+  // drag only slows that; the tie stops it where its pull across balances the tension's.
+  constexpr int kParticles = kArcParticles;
+  const MassSpringSystem system = preTensionedArc(0.1 * std::cos(0.6));
+  const double sagitta = system.rest_position(1, kParticles / 2);
   const auto heldStill = [&](double tie, int frames, double& last_change, bool balanced = false) {
     BlockDescentSettings settings;
     settings.tissue_relaxation_s = 0.001;
@@ -473,17 +482,9 @@ TEST(BlockDescent, TheAcrossFibreTieHoldsAPreTensionedCurvedFibreNearItsShapeAtR
 TEST(BlockDescent, TheRestBalanceIsTheSpringsPullAtRestReversed) {
   // The pre-tensioned arc of the test above: each free particle's balance points away from the arc's centre (the
   // tension's pull towards the chord reversed), 2 T sin(half the angle between segments) with T = k (l - l0).
-  constexpr int kParticles = 9;
-  Eigen::Matrix3Xd arc = Eigen::Matrix3Xd::Zero(3, kParticles);
-  ParticlePairs springs;
-  for (int i = 0; i < kParticles; ++i) {
-    const double angle = -0.6 + 1.2 * i / (kParticles - 1);
-    arc.col(i) << 0.1 * std::sin(angle), 0.1 * std::cos(angle), 0;
-  }
-  for (int i = 0; i + 1 < kParticles; ++i) springs.emplace_back(i, i + 1);
-  MassSpringSystem system = systemFromParticles(arc, springs, 1e-3, 10.0);
-  system.is_fixed[0] = system.is_fixed[kParticles - 1] = 1;
-  system.springs.rest_length *= 0.8;
+  constexpr int kParticles = kArcParticles;
+  const MassSpringSystem system = preTensionedArc(0.0);  // centred on the origin
+  const Eigen::Matrix3Xd& arc = system.rest_position;
   const Eigen::Matrix3Xd balance = restBalanceForces(system);
   const double segment = (arc.col(1) - arc.col(0)).norm();
   const double tension = system.springs.stiffness[0] * (segment - system.springs.rest_length[0]);

@@ -179,11 +179,13 @@ NodeSettings readNodeSettings(const ParameterSource& parameters, const std::stri
                                 toString(simulation.solver_kind) + ")");
   if (core.stream.auto_resolution && stopping.rule != StoppingRule::time_budget)
     p.fail("auto_resolution", "fits the model to time_budget_ms: it needs stopping_rule time_budget");
-  // The tie shares the tissue drag's frame anchor (block_descent_solver.hpp), so the model cannot be built with one and
-  // not the other: refused here, naming the parameter, rather than when the scene is built.
-  const BlockDescentSettings& block_descent = simulation.block_descent;
-  if (block_descent.across_fibre_tie > 0 && !(block_descent.tissue_relaxation_s > 0))
-    p.fail("across_fibre_tie", "needs the tissue drag (tissue_relaxation_s > 0): the tie shares its frame anchor");
+  // Block descent's settings that depend on one another (the across-fibre tie on the drag, the rest balance on the drag
+  // along the fibre) are refused here, before the scene is built, with the core's reason; each reason begins with the
+  // parameter it names.
+  if (const std::string problem = validate(simulation.block_descent); !problem.empty()) {
+    const std::size_t space = problem.find(' ');
+    p.fail(problem.substr(0, space), space == std::string::npos ? "is invalid" : problem.substr(space + 1));
+  }
   // The local/global settings are checked where a solver will use them: the stream's, then the service's (which
   // shares every local/global parameter but the L-BFGS history).
   if (simulation.solver_kind == SolverKind::local_global)

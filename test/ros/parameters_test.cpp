@@ -184,6 +184,10 @@ TEST(Parameters, EveryBadValueIsRefusedNamingTheParameterAndTheProblem) {
             "");
   EXPECT_EQ(errorOf({{"across_fibre_tie", XmlRpc::XmlRpcValue(0.0)}, {"tissue_relaxation_s", XmlRpc::XmlRpcValue(0.0)}}),
             "");
+  EXPECT_EQ(errorOf({{"drag_along_fibre", XmlRpc::XmlRpcValue(0.0)}}),
+            prefix + "balance_rest_shape needs drag_along_fibre > 0: the balance along the fibre rides on the drag there");
+  EXPECT_EQ(errorOf({{"drag_along_fibre", XmlRpc::XmlRpcValue(0.0)}, {"balance_rest_shape", XmlRpc::XmlRpcValue(false)}}),
+            "");
   const std::string replaced = errorOf({{"reset_translation_m", XmlRpc::XmlRpcValue(0.1)}});
   EXPECT_EQ(replaced.rfind(prefix + "reset_translation_m no longer exists", 0), 0u) << replaced;
   EXPECT_NE(replaced.find("max_bone_speed_m_per_s"), std::string::npos) << replaced;
