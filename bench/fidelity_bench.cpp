@@ -54,6 +54,7 @@ struct Tally {
   std::vector<double> abs_volume_error_sum;  // per muscle, summed over frames
   std::vector<double> abs_volume_error_max;  // per muscle
   std::vector<double> skinned_error_max;     // per muscle: the skinning's own, before the volume projection
+  std::vector<std::size_t> skinned_error_max_pose;  // per muscle: the pose (index in its case) where that was
   std::vector<double> inside_depth_max;      // per muscle, metres
   std::vector<double> particle_depth_max;    // per muscle: its deepest particle in bone, metres
   double rest_inside_depth_max = 0;          // first frame
@@ -64,6 +65,7 @@ struct Tally {
 
   explicit Tally(std::size_t muscles)
       : abs_volume_error_sum(muscles, 0), abs_volume_error_max(muscles, 0), skinned_error_max(muscles, 0),
+        skinned_error_max_pose(muscles, 0),
         inside_depth_max(muscles, 0), particle_depth_max(muscles, 0) {}
 };
 
@@ -78,7 +80,7 @@ struct SurfaceVariant {
 };
 
 void measureFrame(SurfaceVariant& v, const DeformationPipeline& simulation, const BoneTransforms& transforms,
-                  int threads, Tally& tally) {
+                  std::size_t pose, int threads, Tally& tally) {
   tally.skinning_ms.push_back(
       bench::millisecondsOf([&] { v.skinning->update(simulation.state().position, transforms, v.surfaces); }));
   if (v.contact)
@@ -97,7 +99,10 @@ void measureFrame(SurfaceVariant& v, const DeformationPipeline& simulation, cons
     tally.abs_volume_error_sum[m] += error;
     tally.abs_volume_error_max[m] = std::max(tally.abs_volume_error_max[m], error);
     const double skinned = corrections.empty() ? error : std::abs(corrections[m].volume_error_before_pct);
-    tally.skinned_error_max[m] = std::max(tally.skinned_error_max[m], skinned);
+    if (skinned > tally.skinned_error_max[m]) {
+      tally.skinned_error_max[m] = skinned;
+      tally.skinned_error_max_pose[m] = pose;
+    }
     tally.inside_depth_max[m] = std::max(tally.inside_depth_max[m], mm.max_inside_bone_depth_m);
     tally.particle_depth_max[m] = std::max(tally.particle_depth_max[m], mm.max_particle_inside_bone_depth_m);
     if (tally.frames == 0) tally.rest_inside_depth_max = std::max(tally.rest_inside_depth_max, mm.max_inside_bone_depth_m);
@@ -223,7 +228,7 @@ int main(int argc, char** argv) {
       for (int sweep = 1; f == 0 && sweep < node.stream.stopping.cold_start_iterations; ++sweep)
         if (!bench::frameOf(session.refine(FrameWants{}))) break;
       for (std::size_t v = 0; v < surfaces.size(); ++v)
-        measureFrame(surfaces[v], simulation, c.frames[f], surface_threads, tallies[v]);
+        measureFrame(surfaces[v], simulation, c.frames[f], f, surface_threads, tallies[v]);
     }
     const StreamCounters& counters = session.counters();
     std::printf("[%6.1f s] %s: %u poses offered in all so far, %u unchanged, %u refined, %u restarts\n",
@@ -232,14 +237,17 @@ int main(int argc, char** argv) {
     for (std::size_t v = 0; v < surfaces.size(); ++v) {
       const Tally& t = tallies[v];
       double mean = 0, worst = 0, skinned_worst = 0, depth = 0, particle_depth = 0;
-      std::size_t worst_muscle = 0;
+      std::size_t worst_muscle = 0, skinned_worst_muscle = 0;
       for (std::size_t m = 0; m < muscle_count; ++m) {
         mean += t.abs_volume_error_sum[m] / (t.frames * static_cast<double>(muscle_count));
         if (t.abs_volume_error_max[m] > worst) {
           worst = t.abs_volume_error_max[m];
           worst_muscle = m;
         }
-        skinned_worst = std::max(skinned_worst, t.skinned_error_max[m]);
+        if (t.skinned_error_max[m] > skinned_worst) {
+          skinned_worst = t.skinned_error_max[m];
+          skinned_worst_muscle = m;
+        }
         depth = std::max(depth, t.inside_depth_max[m]);
         particle_depth = std::max(particle_depth, t.particle_depth_max[m]);
       }
@@ -256,6 +264,8 @@ int main(int argc, char** argv) {
       records.add("volume_error_max_pct", worst);
       records.add("volume_error_max_muscle", system.muscle_name[worst_muscle]);
       records.add("skinned_volume_error_max_pct", skinned_worst);
+      records.add("skinned_volume_error_max_muscle", system.muscle_name[skinned_worst_muscle]);
+      records.add("skinned_volume_error_max_pose", static_cast<double>(t.skinned_error_max_pose[skinned_worst_muscle]));
       records.add("surface_inside_bone_max_mm", depth * 1e3);
       records.add("surface_inside_bone_rest_mm", t.rest_inside_depth_max * 1e3);
       records.add("particle_inside_bone_max_mm", particle_depth * 1e3);
@@ -267,11 +277,13 @@ int main(int argc, char** argv) {
       if (!t.contact_ms.empty()) records.add("contact_ms_median", bench::median(t.contact_ms));
       records.add("metrics_ms_median", bench::median(t.metrics_ms));
       records.end();
-      std::printf("[%6.1f s] %-11s %-26s volume error mean %5.2f %%, max %6.2f %% (%s; skinned %6.2f %%), inside bone "
+      std::printf("[%6.1f s] %-11s %-26s volume error mean %5.2f %%, max %6.2f %% (%s; skinned %6.2f %%, %s pose %zu), inside bone "
                   "%5.2f mm (rest %5.2f), particles %5.2f mm, offsets mean %.3f / max %.2f mm, held %d, volume %.2f ms, "
                   "metrics %.2f ms\n",
                   elapsedSeconds(), c.name.c_str(), surfaces[v].variant.label.c_str(), mean, worst,
-                  system.muscle_name[worst_muscle].c_str(), skinned_worst, depth * 1e3,
+                  system.muscle_name[worst_muscle].c_str(), skinned_worst,
+                  system.muscle_name[skinned_worst_muscle].c_str(), t.skinned_error_max_pose[skinned_worst_muscle],
+                  depth * 1e3,
                   t.rest_inside_depth_max * 1e3, particle_depth * 1e3, t.offset_mean_sum_m / std::max(1, t.frames) * 1e3,
                   t.offset_max_m * 1e3, t.held_max, bench::median(t.volume_ms), bench::median(t.metrics_ms));
       std::fflush(stdout);
@@ -284,6 +296,8 @@ int main(int argc, char** argv) {
           records.add("muscle", system.muscle_name[m]);
           records.add("volume_error_mean_pct", t.abs_volume_error_sum[m] / t.frames);
           records.add("volume_error_max_pct", t.abs_volume_error_max[m]);
+          records.add("skinned_volume_error_max_pct", t.skinned_error_max[m]);
+          records.add("skinned_volume_error_max_pose", static_cast<double>(t.skinned_error_max_pose[m]));
           records.add("surface_inside_bone_max_mm", t.inside_depth_max[m] * 1e3);
           records.add("particle_inside_bone_max_mm", t.particle_depth_max[m] * 1e3);
           records.end();

@@ -266,6 +266,13 @@ def bone_proxy_section(rows):
     return lines
 
 
+def _worst_pose(row):
+    """Where the skinned surface's worst volume error was: its muscle and the pose's index in the case."""
+    if "skinned_volume_error_max_muscle" not in row:
+        return ""
+    return f" ({row['skinned_volume_error_max_muscle']}, {int(row['skinned_volume_error_max_pose'])})"
+
+
 def fidelity_section(rows):
     variants = [r for r in rows if "muscle" not in r and r.get("case") != "precompute"]
     unavailable = [r for r in rows if r.get("case") == "precompute"]
@@ -286,7 +293,7 @@ def fidelity_section(rows):
                 if variants and "threads" in variants[0] else "")
              + "Raw numbers: `out/bench/fidelity.json`.",
              "",
-             "| case | surface | volume error mean % | worst % (muscle) | skinned worst % | surface inside bone max mm "
+             "| case | surface | volume error mean % | worst % (muscle) | skinned worst % (muscle, pose) | surface inside bone max mm "
              "(first frame) | particles inside bone max mm | offsets mean / max mm | vertices held by a bone | "
              "skinning ms | bone contact ms | volume ms | metrics ms |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -295,7 +302,7 @@ def fidelity_section(rows):
         contact_ms = f"{r['contact_ms_median']:.2f}" if "contact_ms_median" in r else "-"
         lines.append(f"| {r['case']} | {r['variant']}{node} | {r['volume_error_mean_pct']:.2f} | "
                      f"{r['volume_error_max_pct']:.2f} ({r['volume_error_max_muscle']}) | "
-                     f"{r['skinned_volume_error_max_pct']:.2f} | {r['surface_inside_bone_max_mm']:.2f} "
+                     f"{r['skinned_volume_error_max_pct']:.2f}{_worst_pose(r)} | {r['surface_inside_bone_max_mm']:.2f} "
                      f"({r['surface_inside_bone_rest_mm']:.2f}) | {r.get('particle_inside_bone_max_mm', float('nan')):.2f} | "
                      + (f"{r['offset_mean_mm']:.3f} / {r['offset_max_mm']:.2f} | {int(r['vertices_held_max'])} | "
                         if r["keep_volume"] else "- | - | ")

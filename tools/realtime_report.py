@@ -84,12 +84,17 @@ def realtime_section(rows, img_dir, img_link_prefix="img/"):
                 moved = (f"; the same frame given twice the sweeps from another start ends "
                          f"{reference['reference_moves_mm']:.3f} mm RMS from it" if "reference_moves_mm" in reference
                          else "")
+                own = (f" by the yardstick, which leaves out the muscles' volume pressure; by its own solve, with "
+                       f"the volume term (what the residual criterion applies to): "
+                       f"{reference['reference_own_residual_median']:.1e} median, "
+                       f"{reference['reference_own_residual_max']:.1e} max"
+                       if reference.get("reference_own_residual_median") is not None else "")
                 lines.append(f"Reference: block descent with tissue drag {1e3 * reference['tissue_relaxation_s']:.2g} ms, "
                              f"{int(reference['reference_sweeps'])} sweeps per "
                              f"{'frame from the previous reference frame' if mode == 'stream' else 'pose'}, "
                              f"{int(reference['frames'])} {'frames' if mode == 'stream' else 'poses'}; its residual "
                              f"{reference['reference_residual_median']:.1e} median, "
-                             f"{reference['reference_residual_max']:.1e} max{moved}.")
+                             f"{reference['reference_residual_max']:.1e} max{own}{moved}.")
             agreement = _agreement(rows, scene) if mode == "stream" else None
             if agreement:
                 frames = [r for r in rows if r["scene"] == scene and r["solver"] == "agreement_frame"]
