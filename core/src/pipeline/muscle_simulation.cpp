@@ -112,7 +112,10 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
   if (solver_->balancesRestShape()) rest_balance_ = restBalanceForces(system_);
 }
 
-void MuscleSimulation::reset() { has_previous_ = false; }
+void MuscleSimulation::reset() {
+  has_previous_ = false;
+  cold_drag_share_.clear();
+}
 
 void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eigen::Matrix3Xd& position) {
   if (transforms.size() != bones_.size() || position.cols() != system_.particleCount())
@@ -122,6 +125,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   if (!position.allFinite()) throw std::invalid_argument("continueFrom: non-finite position");
   state_.position = position;
   state_.previous_position = position;
+  cold_drag_share_.clear();  // whatever pressure it had, the frame continued is not a cold start's
   correction_.setZero(3, position.cols());
   correction_change_.resize(3, 0);
   previous_correction_change_.resize(3, 0);
@@ -255,7 +259,10 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   // number of iterations instead (FrameStopping::cold_start_iterations).
   frame_transforms_ = transforms;
   const StoppingSettings main = mainSolveStopping(stats.warm_started, stopping);
-  if (!stats.warm_started) resetVolumePressure();
+  if (!stats.warm_started)
+    resetVolumePressure();
+  else
+    takeColdDragOutOfPressure();
   if (!stats.warm_started && pressureBuilds() && main.rule == StoppingRule::iterations && main.max_iterations > 1) {
     // A cold start carries no pressure from a frame before: the muscles' pressures build within its own sweeps, one
     // update after every kColdPressureSweeps (the same update a warm frame gets once, after its solve). Each part is a
@@ -293,7 +300,27 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   }
   finishFrame(transforms, drag, false, stats);
   updateVolumePressure();
+  measureColdDragShare(stats.warm_started);
   return stats;
+}
+
+void MuscleSimulation::measureColdDragShare(bool warm) {
+  cold_drag_share_.clear();
+  if (warm || !has_previous_ || !pressureBuilds()) return;
+  cold_drag_share_ = solver_->dragShareOfVolumeTargets(state_);
+}
+
+void MuscleSimulation::takeColdDragOutOfPressure() {
+  if (cold_drag_share_.size() == volume_target_m3_.size() && pressureBuilds()) {
+    const std::vector<double>& rest = volume_->restVolumes();
+    for (std::size_t m = 0; m < cold_drag_share_.size(); ++m) {
+      const double bound = kMaxVolumeTargetShift * std::abs(rest[m]);
+      volume_target_m3_[m] =
+          std::clamp(volume_target_m3_[m] + cold_drag_share_[m], rest[m] - bound, rest[m] + bound);
+    }
+    solver_->setVolumeTargets(volume_target_m3_);
+  }
+  cold_drag_share_.clear();
 }
 
 FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
@@ -310,6 +337,7 @@ FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
   const BoneTransforms transforms = previous_transforms_;
   finishFrame(transforms, solver_->dragsTissue(), true, stats);
   updateVolumePressure();
+  measureColdDragShare(stats.warm_started);
   return stats;
 }
 

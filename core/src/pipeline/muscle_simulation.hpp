@@ -99,6 +99,16 @@ class MuscleSimulation {
   // After a solved frame: each muscle's pressure takes on volume_pressure_gain of its remaining volume error.
   void updateVolumePressure();
   bool pressureBuilds() const { return volume_ && settings_.block_descent.volume_pressure_gain > 0; }
+  // After a cold start: the pressure built within it held the volume against the tissue drag's pull towards the rigid
+  // pre-transform (which squeezes a muscle by up to 8 % on the bundled gait). The next frame's drag pulls towards this
+  // frame's answer instead, and that share of the pressure would inflate the muscle (the biceps femoris short head 4.5 %
+  // at the gait's first warm frame, docs/lengths.md), so the first warm frame after it starts from the pressure the
+  // answer needs without the drag (SoftBodySolver::dragShareOfVolumeTargets). The cold frame's own answer, and its
+  // refinements (the same anchor), are unchanged: the share is measured after each and taken out when a warm frame
+  // begins.
+  void measureColdDragShare(bool warm);
+  void takeColdDragOutOfPressure();
+  std::vector<double> cold_drag_share_;  // per muscle (m^3); empty unless the last frame was a cold start
   void resetVolumePressure();
   BoneTransforms frame_transforms_;        // the bones of the frame being solved (the volume term's skin reads them)
 

@@ -762,6 +762,35 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
   displacement_sum = step_sum;
 }
 
+std::vector<double> BlockDescentSolver::dragShareOfVolumeTargets(const ParticleState& state) {
+  const Eigen::Matrix3Xd& position = state.position;
+  if (!volume_.active() || !dragsTissue() || state.carried_position.cols() != position.cols()) return {};
+  Eigen::Matrix3Xd merged;
+  frameDragAnchor(state, state.carried_position, merged);  // the fibres' directions the drag takes this frame
+  evaluateVolume(position);
+  const std::size_t muscles = volume_.stiffness.size();
+  std::vector<double> projected(muscles, 0.0), gradient_squared(muscles, 0.0);
+  for (const std::int32_t p : free_particles_) {
+    if (volume_gradient_.cols() <= p) break;
+    // The drag's own force: the merged quadratic W (m - x) less the same with the tissue carrying the particle where it
+    // stands, W (I - tie_share (I - t t^T)) (c - x), with W = w' ((I - t t^T) + a' t t^T) (frameDragAnchor).
+    const Eigen::Vector3d t = dragDirection(p);  // zero for an isotropic drag
+    const Eigen::Vector3d pull = state.carried_position.col(p) - position.col(p);
+    const double along = t.dot(pull);
+    const Eigen::Vector3d across = pull - along * t;
+    const Eigen::Vector3d force = drag_weight_[p] * ((1.0 - tie_share_) * across + drag_along_ * along * t);
+    const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)]);
+    const Eigen::Vector3d g = volume_gradient_.col(p);
+    projected[m] += g.dot(force);
+    gradient_squared[m] += g.squaredNorm();
+  }
+  std::vector<double> shift(muscles, 0.0);
+  for (std::size_t m = 0; m < muscles; ++m)
+    if (volume_.stiffness[m] > 0 && gradient_squared[m] > 0)
+      shift[m] = projected[m] / (volume_.stiffness[m] * gradient_squared[m]);
+  return shift;
+}
+
 double BlockDescentSolver::residualOf(const ParticleState& state) {
   gatherContacts(state);
   evaluateVolume(state.position);

@@ -154,6 +154,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   void restLengthsChanged() override;
   void setVolumeTerm(VolumeTerm term) override;
   void setVolumeTargets(const std::vector<double>& target_volume_m3) override;
+  std::vector<double> dragShareOfVolumeTargets(const ParticleState& state) override;
   const VolumeTerm& volumeTerm() const { return volume_; }
   // Clamped to [kMinFrameIntervalS, kMaxFrameIntervalS] (a pose stream's gaps, whatever their cause, give the tissue
   // no more than a tenth of a second to relax in); kNominalFrameIntervalS until set.

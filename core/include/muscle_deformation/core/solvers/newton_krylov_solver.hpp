@@ -50,6 +50,9 @@ class NewtonKrylovSolver final : public SoftBodySolver {
   void setVolumeTargets(const std::vector<double>& target_volume_m3) override {
     energy_.setVolumeTargets(target_volume_m3);
   }
+  std::vector<double> dragShareOfVolumeTargets(const ParticleState& state) override {
+    return energy_.dragShareOfVolumeTargets(state);
+  }
   void setContactQuery(ContactQuery query, bool every_particle_collides) override;
   void setFrameInterval(double seconds) override { energy_.setFrameInterval(seconds); }
 

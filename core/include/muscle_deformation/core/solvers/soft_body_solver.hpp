@@ -68,6 +68,11 @@ class SoftBodySolver {
   // New per-muscle targets of the volume term (VolumeTerm::target_volume_m3: the muscles' pressures, carried from
   // frame to frame by the simulation); ignored without a volume term.
   virtual void setVolumeTargets(const std::vector<double>& /*target_volume_m3*/) {}
+  // Per muscle, how far the volume target would move if the tissue drag's pull on `state` (towards
+  // state.carried_position) were taken out of the balance that the muscle's pressure holds: D_m / (k_m |g_m|^2), with
+  // D_m the drag's force projected on the gradient g_m of the muscle's volume over its particles (m^3; negative where
+  // the drag squeezes the muscle). Empty for a solver without both the drag and the volume term.
+  virtual std::vector<double> dragShareOfVolumeTargets(const ParticleState& /*state*/) { return {}; }
 };
 
 }  // namespace muscle_deformation
