@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include <functional>
+
 using namespace muscle_deformation;
 using muscle_deformation::testing::converging;
 using muscle_deformation::testing::solvePose;
@@ -78,10 +80,37 @@ TEST(NewtonKrylov, DragAlongTheFibreMatchesTheAnalyticAnswer) {
   EXPECT_NEAR(state.position(0, 1) - 1.0, 0.25 * 0.3 / 2.25, 1e-9);
 }
 
+namespace {
+
+// The three-particle fibre solved from `start` by the whole-frame Newton steps (frameForces, frameHessianTimes) and by
+// block descent's sweeps with `energy`: the two reach the same answer, and the answer moves when `switch_off` takes the
+// term under test away (so that it takes part).
+void expectNewtonMatchesSweepsWithTheTermTakingPart(const BlockDescentSettings& energy, const ParticleState& start,
+                                                    const std::function<void(BlockDescentSettings&)>& switch_off) {
+  const MassSpringSystem system = threeParticleFibre();
+  ParticleState newton = start, sweeps = start;
+  NewtonKrylovSolver solver(system, energy, {});
+  solver.setFrameInterval(0.01);
+  // 1e-8: the line search compares frame energies of about 0.1 J, which cannot tell steps below a few 1e-9 N apart.
+  EXPECT_TRUE(solver.solve(newton, converging(100, 1e-8)).converged);
+  BlockDescentSolver reference(system, energy);
+  reference.setFrameInterval(0.01);
+  EXPECT_TRUE(reference.solve(sweeps, converging(2000, 1e-12)).converged);
+  EXPECT_LT((newton.position.col(1) - sweeps.position.col(1)).norm(), 1e-8);
+  BlockDescentSettings without_term = energy;
+  switch_off(without_term);
+  BlockDescentSolver other(system, without_term);
+  other.setFrameInterval(0.01);
+  ParticleState without = start;
+  EXPECT_TRUE(other.solve(without, converging(2000, 1e-12)).converged);
+  EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);
+}
+
+}  // namespace
+
 TEST(NewtonKrylov, TheAcrossFibreTieMatchesBlockDescentsAnswer) {
   // The three-particle fibre of the drag test with a quarter of the drag along it and the across-fibre tie (2 N/m on the
-  // middle particle), carried off along and across, its rest carried off along and across: the whole-frame Newton
-  // steps (frameForces, frameHessianTimes) reach the answer of block descent's sweeps.
+  // middle particle), carried off along and across, its rest carried off along and across.
   const MassSpringSystem system = threeParticleFibre();
   BlockDescentSettings energy;
   energy.tissue_relaxation_s = 0.005;
@@ -92,21 +121,7 @@ TEST(NewtonKrylov, TheAcrossFibreTieMatchesBlockDescentsAnswer) {
   start.carried_position.col(1) = Eigen::Vector3d(1.2, 0.3, -0.1);
   start.rest_carried_position = start.position;
   start.rest_carried_position.col(1) = Eigen::Vector3d(0.9, -0.2, 0.1);
-  ParticleState newton = start, sweeps = start;
-  NewtonKrylovSolver solver(system, energy, {});
-  solver.setFrameInterval(0.01);
-  // 1e-8: the line search compares frame energies of about 0.1 J, which cannot tell steps below a few 1e-9 N apart.
-  EXPECT_TRUE(solver.solve(newton, converging(100, 1e-8)).converged);
-  BlockDescentSolver reference(system, energy);
-  reference.setFrameInterval(0.01);
-  EXPECT_TRUE(reference.solve(sweeps, converging(2000, 1e-12)).converged);
-  EXPECT_LT((newton.position.col(1) - sweeps.position.col(1)).norm(), 1e-8);
-  energy.across_fibre_tie = 0;
-  BlockDescentSolver untied(system, energy);
-  untied.setFrameInterval(0.01);
-  ParticleState without = start;
-  EXPECT_TRUE(untied.solve(without, converging(2000, 1e-12)).converged);
-  EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);  // the tie takes part
+  expectNewtonMatchesSweepsWithTheTermTakingPart(energy, start, [](BlockDescentSettings& s) { s.across_fibre_tie = 0; });
 }
 
 TEST(NewtonKrylov, TheRestBalanceMatchesBlockDescentsAnswer) {
@@ -123,20 +138,8 @@ TEST(NewtonKrylov, TheRestBalanceMatchesBlockDescentsAnswer) {
   start.rest_carried_position = start.position;
   start.rest_balance_force = Eigen::Matrix3Xd::Zero(3, 3);
   start.rest_balance_force.col(1) = Eigen::Vector3d(0.3, -0.2, 0.1);
-  ParticleState newton = start, sweeps = start;
-  NewtonKrylovSolver solver(system, energy, {});
-  solver.setFrameInterval(0.01);
-  EXPECT_TRUE(solver.solve(newton, converging(100, 1e-8)).converged);
-  BlockDescentSolver reference(system, energy);
-  reference.setFrameInterval(0.01);
-  EXPECT_TRUE(reference.solve(sweeps, converging(2000, 1e-12)).converged);
-  EXPECT_LT((newton.position.col(1) - sweeps.position.col(1)).norm(), 1e-8);
-  energy.balance_rest_shape = false;
-  BlockDescentSolver unbalanced(system, energy);
-  unbalanced.setFrameInterval(0.01);
-  ParticleState without = start;
-  EXPECT_TRUE(unbalanced.solve(without, converging(2000, 1e-12)).converged);
-  EXPECT_GT((sweeps.position.col(1) - without.position.col(1)).norm(), 0.05);  // the balance takes part
+  expectNewtonMatchesSweepsWithTheTermTakingPart(energy, start,
+                                                 [](BlockDescentSettings& s) { s.balance_rest_shape = false; });
 }
 
 TEST(NewtonKrylov, ReachesTheSameFrameAnswerAsBlockDescentFromTheSameStart) {

@@ -17,18 +17,25 @@ void checkTransforms(const MassSpringSystem& system, const BoneTransforms& trans
 }  // namespace
 
 namespace {
-// Linear blend of the particle's bones' transforms applied to `point`.
-Eigen::Vector3d blendedMotion(const MassSpringSystem& system, const BoneTransforms& transforms, Eigen::Index particle,
-                              const Eigen::Vector3d& point) {
+// The weighted mean over the particle's bones of `moved(bone)`, or `unblended` for a particle without bones.
+template <class Moved>
+Eigen::Vector3d blendOverBones(const MassSpringSystem& system, Eigen::Index particle, const Eigen::Vector3d& unblended,
+                              const Moved& moved) {
   Eigen::Vector3d blended = Eigen::Vector3d::Zero();
   double weight_sum = 0;
   for (int k = 0; k < MassSpringSystem::kBlendBones; ++k) {
     const int bone = system.blend_bone(k, particle);
     if (bone == kNoBone) continue;
-    blended += system.blend_weight(k, particle) * (transforms[bone] * point);
+    blended += system.blend_weight(k, particle) * moved(bone);
     weight_sum += system.blend_weight(k, particle);
   }
-  return weight_sum > 0 ? Eigen::Vector3d(blended / weight_sum) : point;
+  return weight_sum > 0 ? Eigen::Vector3d(blended / weight_sum) : unblended;
+}
+
+// Linear blend of the particle's bones' transforms applied to `point`.
+Eigen::Vector3d blendedMotion(const MassSpringSystem& system, const BoneTransforms& transforms, Eigen::Index particle,
+                              const Eigen::Vector3d& point) {
+  return blendOverBones(system, particle, point, [&](int bone) { return Eigen::Vector3d(transforms[bone] * point); });
 }
 }  // namespace
 
@@ -49,16 +56,9 @@ Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTran
                                 std::to_string(n) + " particles");
   Eigen::Matrix3Xd carried(3, n);
   for (Eigen::Index i = 0; i < n; ++i) {
-    Eigen::Matrix3d blended = Eigen::Matrix3d::Zero();
-    double weight_sum = 0;
-    for (int k = 0; k < MassSpringSystem::kBlendBones; ++k) {
-      const int bone = system.blend_bone(k, i);
-      if (bone == kNoBone) continue;
-      blended += system.blend_weight(k, i) * transforms[bone].linear();
-      weight_sum += system.blend_weight(k, i);
-    }
-    carried.col(i) = weight_sum > 0 ? Eigen::Vector3d(blended * rest_vectors.col(i) / weight_sum)
-                                    : Eigen::Vector3d(rest_vectors.col(i));
+    const Eigen::Vector3d vector = rest_vectors.col(i);
+    carried.col(i) = blendOverBones(system, i, vector,
+                                    [&](int bone) { return Eigen::Vector3d(transforms[bone].linear() * vector); });
   }
   return carried;
 }

@@ -178,12 +178,18 @@ void MuscleSimulation::updateVolumePressure() {
   std::vector<double> volumes;
   volume_->volumes(state_.position, frame_transforms_, volumes);
   const std::vector<double>& rest = volume_->restVolumes();
-  for (std::size_t m = 0; m < volumes.size(); ++m) {
+  std::vector<double> shift(volumes.size());
+  for (std::size_t m = 0; m < volumes.size(); ++m) shift[m] = -gain * (volumes[m] - rest[m]);
+  moveVolumeTargets(shift);
+}
+
+void MuscleSimulation::moveVolumeTargets(const std::vector<double>& shift) {
+  const std::vector<double>& rest = volume_->restVolumes();
+  for (std::size_t m = 0; m < shift.size(); ++m) {
     // A muscle held from its volume by the bones (or a volume the skin cannot reach) would wind its pressure up
     // without end: the target stays within kMaxVolumeTargetShift of the rest volume.
     const double bound = kMaxVolumeTargetShift * std::abs(rest[m]);
-    const double shifted = volume_target_m3_[m] - gain * (volumes[m] - rest[m]);
-    volume_target_m3_[m] = std::clamp(shifted, rest[m] - bound, rest[m] + bound);
+    volume_target_m3_[m] = std::clamp(volume_target_m3_[m] + shift[m], rest[m] - bound, rest[m] + bound);
   }
   solver_->setVolumeTargets(volume_target_m3_);
 }
@@ -311,15 +317,7 @@ void MuscleSimulation::measureColdDragShare(bool warm) {
 }
 
 void MuscleSimulation::takeColdDragOutOfPressure() {
-  if (cold_drag_share_.size() == volume_target_m3_.size() && pressureBuilds()) {
-    const std::vector<double>& rest = volume_->restVolumes();
-    for (std::size_t m = 0; m < cold_drag_share_.size(); ++m) {
-      const double bound = kMaxVolumeTargetShift * std::abs(rest[m]);
-      volume_target_m3_[m] =
-          std::clamp(volume_target_m3_[m] + cold_drag_share_[m], rest[m] - bound, rest[m] + bound);
-    }
-    solver_->setVolumeTargets(volume_target_m3_);
-  }
+  if (cold_drag_share_.size() == volume_target_m3_.size() && pressureBuilds()) moveVolumeTargets(cold_drag_share_);
   cold_drag_share_.clear();
 }
 

@@ -98,6 +98,8 @@ class MuscleSimulation {
   static constexpr int kColdPressureSweeps = 5;          // a cold start's sweeps between its pressure updates
   // After a solved frame: each muscle's pressure takes on volume_pressure_gain of its remaining volume error.
   void updateVolumePressure();
+  // Each muscle's volume target moved by `shift` (m^3), within kMaxVolumeTargetShift of its rest volume.
+  void moveVolumeTargets(const std::vector<double>& shift);
   bool pressureBuilds() const { return volume_ && settings_.block_descent.volume_pressure_gain > 0; }
   // After a cold start: the pressure built within it held the volume against the tissue drag's pull towards the rigid
   // pre-transform (which squeezes a muscle by up to 8 % on the bundled gait). The next frame's drag pulls towards this
