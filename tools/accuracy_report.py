@@ -73,6 +73,19 @@ def _converged_strain(row):
             f"({int(row['converged_frames'])} of {int(row['reference_frames'])})")
 
 
+def _deepest_centre(cases):
+    """The deepest particle centre in a bone over the cases (the distance fields'), as a sentence; empty if unmeasured."""
+    measured = [row for row in cases if row.get("max_particle_inside_bone_mm") is not None]
+    if not measured:
+        return ""
+    row = max(measured, key=lambda r: r["max_particle_inside_bone_mm"])
+    if row["max_particle_inside_bone_mm"] <= 0:
+        return " No particle centre is inside a bone."
+    where = f", {row['deepest_particle']}" if row.get("deepest_particle") else ""
+    return (f" The deepest particle centre inside a bone (the bone's distance field): "
+            f"{row['max_particle_inside_bone_mm']:.2f} mm ({row['case']}{where}).")
+
+
 def _folding(row):
     """Whether the fibres kept their line in the case's worst frame: fibres folded and tortuosity against rest."""
     if "folded_fibres_max" not in row:
@@ -126,7 +139,8 @@ def stability_section(rows):
         lines += ["", f"The median collision sphere radius is {radius:.2f} mm. "
                   + (f"Penetration deeper than that (a particle centre inside the bone proxy) remains in: "
                      + "; ".join(notes) + ". It is convergence unfinished within the frame's iterations, not "
-                     "divergence." if deep else "No case leaves a particle centre inside a bone proxy."), ""]
+                     "divergence." if deep else "No contact is deeper than that.")
+                  + _deepest_centre(cases), ""]
     if motions:
         gait = next((row for row in motions if row["case"] == "gait_1x"), None)
         lines += ["### Motions beyond the gait", "",

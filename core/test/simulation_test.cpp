@@ -178,6 +178,39 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   EXPECT_TRUE(guarded.jump.finite);
 }
 
+TEST(Simulation, AColdStartThatLeavesAParticleCentreInABoneGetsItsDeepContactSweepsToo) {
+  // The bundled thigh muscles at the node's settings (with the volume term, which needs the pipeline's skinning),
+  // started cold under a time budget at an extreme pose (hip flexion 110 deg, knee flexion 130 deg): the cold start's
+  // fixed sweeps leave a particle centre in the femur (the tension pulls the belly round the bone faster than they
+  // resolve the contact), and the frame then takes the deep-contact sweeps a warm frame would, within their cap.
+  const ThighAtNodeSettings scene = thighAtNodeSettings();
+  const Pose extreme =
+      poseFor(scene.thigh, {{"hip_flexion_r", 1.9198621771937625}, {"knee_angle_r", -2.2689280275926285}});
+  PipelineSettings settings = scene.node.pipeline;
+  settings.skin_surfaces = settings.measure_fidelity = false;
+  const auto run = [&](int deep_contact_sweeps) {
+    FrameStopping chosen = scene.oneSweep();
+    chosen.deep_contact_sweeps = deep_contact_sweeps;
+    DeformationPipeline pipeline(scene.thigh.scene.muscle_descriptions, scene.thigh.scene.muscles,
+                                 scene.thigh.scene.bones, settings);
+    const FrameStats stats =
+        pipeline.solve(boneTransformsOf(pipeline.bones(), extreme), StartMode::cold, chosen, false, false).stats;
+    return std::make_pair(stats, pipeline.system().medianCollisionRadius());
+  };
+  const int cold_sweeps = scene.node.stream.stopping.cold_start_iterations;
+  const auto [fixed_only, median_radius_m] = run(0);
+  const FrameStats guarded = run(3).first;
+  ASSERT_GT(fixed_only.collision.max_penetration_muscle_bone_m, median_radius_m);
+  EXPECT_FALSE(fixed_only.warm_started);
+  EXPECT_EQ(fixed_only.solver.iterations, cold_sweeps);
+  EXPECT_EQ(fixed_only.deep_contact_sweeps, 0);
+  EXPECT_GT(guarded.solver.iterations, cold_sweeps);
+  EXPECT_LE(guarded.solver.iterations, cold_sweeps + 3);
+  EXPECT_EQ(guarded.deep_contact_sweeps, guarded.solver.iterations - cold_sweeps);  // the frame says how many
+  EXPECT_LT(guarded.collision.max_penetration_muscle_bone_m, fixed_only.collision.max_penetration_muscle_bone_m);
+  EXPECT_TRUE(guarded.finite);
+}
+
 TEST(Simulation, AStreamHeldNearlyStillStaysAtItsAnswerWithOneSweepAFrame) {
   // The bundled thigh muscles at the node's settings (with the volume term, which needs the pipeline's skinning), one
   // sweep a frame: a recording of a skeleton standing still jitters by a few micrometres (every bone turned by up to

@@ -9,6 +9,7 @@
 #include "muscle_deformation/core/solvers/solver_factory.hpp"
 #include "muscle_deformation/core/surfaces/skinned_volume.hpp"
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -66,6 +67,12 @@ class MuscleSimulation {
   // (deep contact; catch-up, not for a `refinement`).
   void runSolver(const BoneTransforms& transforms, const StoppingSettings& main, const FrameStopping& stopping,
                  FrameStats& stats, bool refinement);
+  // Up to `cap` single sweeps past the frame's main solve while `needed()` holds and the solve is sound, each from
+  // where the last ended, towards the same answer; `count` says how many the frame took.
+  void sweepPastBudget(const StoppingSettings& main, int cap, const std::function<bool()>& needed, FrameStats& stats,
+                       int& count);
+  // FrameStopping::deep_contact_sweeps: while a bone contact is deeper than the median collision radius.
+  void sweepDeepContacts(const StoppingSettings& main, const FrameStopping& stopping, FrameStats& stats);
   // Finite check (with the pre-transform as the last resort) and what the next warm start continues; `refinement`: the
   // frame continued the last one (refine()).
   void finishFrame(const BoneTransforms& transforms, bool drag, bool refinement, FrameStats& stats);

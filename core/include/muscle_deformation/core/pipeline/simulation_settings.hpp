@@ -61,7 +61,8 @@ struct FrameStopping {
   // ends 0.08 mm deep at most in 118 ms (real-time bench), and a frame that long still fits between the poses of a
   // stream played slower than real time.
   int cold_start_iterations = 10;
-  // time_budget, warm frames of a solver with contacts in its solve: sweeps a frame may take past its budget while the
+  // time_budget, frames of a solver with contacts in its solve (warm, and a cold start after its
+  // cold_start_iterations): sweeps a frame may take past its budget while the
   // collision stage measures a bone contact deeper than the median collision radius (a particle of median size with
   // its centre in the bone). A smooth stream never needs them (the bundled gait: 0.03 mm at most); a warm frame after a
   // jump does (thigh13, rest to 90 deg hip flexion in one frame: 1.71 mm after the one sweep its budget fits, 0.19 mm
