@@ -234,10 +234,14 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
   settings.model.particles_per_fibre = 10;
   settings.solver_kind = SolverKind::block_descent;
   const FrameStopping stopping = FrameStopping::of(StoppingSettings::afterIterations(12));
-  for (const double relaxation_s : {0.0, 0.0005}) {  // quasi-static, and with a tissue drag and prediction
-    settings.block_descent.tissue_relaxation_s = relaxation_s;
+  // Quasi-static; with a tissue drag and prediction; and with the drag, a toned belly and the coarse step along the
+  // fibres (whose sums and energies are split among the threads).
+  for (const int variant : {0, 1, 2}) {
+    settings.block_descent.tissue_relaxation_s = variant == 0 ? 0.0 : 0.0005;
+    settings.block_descent.fibre_modes = variant == 2 ? 4 : 0;
+    settings.model.fibre_tone = variant == 2 ? 1.0 : 0.0;
     Eigen::Matrix3Xd positions[2];
-    int contacts[2] = {0, 0};
+    int contacts[2] = {0, 0}, fibre_steps[2] = {0, 0};
     for (const int threads : {1, 2}) {
       MuscleSimulation simulation(scene.muscles, scene.bones, settings, threads);
       solvePose(simulation, syntheticThighPose(0.4, 0.6), StartMode::cold, stopping);
@@ -245,10 +249,13 @@ TEST(BlockDescent, OneAndTwoThreadsGiveIdenticalPositions) {
       const FrameStats stats = solvePose(simulation, syntheticThighPose(0.7, 1.0), StartMode::warm, stopping);
       positions[threads - 1] = simulation.state().position;
       contacts[threads - 1] = stats.solver.contacts;
+      fibre_steps[threads - 1] = stats.solver.fibre_steps;
     }
     EXPECT_GT(contacts[0], 0);  // the case exercises contacts in the solve
     EXPECT_EQ(contacts[0], contacts[1]);
-    EXPECT_TRUE((positions[0].array() == positions[1].array()).all()) << "tissue_relaxation_s " << relaxation_s;
+    if (variant == 2) EXPECT_GT(fibre_steps[0], 0) << "the coarse step took part";
+    EXPECT_EQ(fibre_steps[0], fibre_steps[1]);
+    EXPECT_TRUE((positions[0].array() == positions[1].array()).all()) << "variant " << variant;
   }
 }
 

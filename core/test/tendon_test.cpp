@@ -256,3 +256,103 @@ TEST(Tendon, ASiteOnALinkWithoutABoneIsRefusedNamingTheMuscleAndTheLink) {
     EXPECT_NE(message.find("knee_tx_r_link"), std::string::npos) << message;
   }
 }
+
+// The share by which a toned belly's rest length changes at `transforms`, as the mean over its fibres of the span's
+// change over the belly's length, both from the model (the sampled fibres end a little inside the surface).
+double tonedShare(const MassSpringSystem& system, const BoneTransforms& transforms) {
+  double sum = 0;
+  for (const FibreSpan& span : system.belly_tone.fibres) {
+    const Eigen::Vector3d first = transforms[static_cast<std::size_t>(system.fixed_bone[static_cast<std::size_t>(span.first_anchor)])] *
+                                  system.rest_position.col(span.first_anchor);
+    const Eigen::Vector3d last = transforms[static_cast<std::size_t>(system.fixed_bone[static_cast<std::size_t>(span.last_anchor)])] *
+                                 system.rest_position.col(span.last_anchor);
+    sum += ((first - last).norm() - span.rest_span_m) / span.belly_length_m;
+  }
+  return sum / static_cast<double>(system.belly_tone.fibres.size());
+}
+
+TEST(Tendon, ATonedBellyTakesItsPathsWholeChangeWhereAPassiveOneSharesItWithAnElasticTendon) {
+  // The tendon as soft as the belly's material (ratio 1), so that a passive belly leaves part of the path's change to
+  // it. Bones 10 % closer shorten the 14 cm path by 14 mm; a belly with full tone (its rest length following the
+  // span between its attachments) takes all of it: about 14 % of its 10 cm.
+  const HangingScene scene = hangingMuscle();
+  const auto shortening = [&](double tone) {
+    PipelineSettings s = settings(1.0);
+    s.simulation.model.fibre_prestretch = 0.2;
+    s.simulation.model.fibre_tone = tone;
+    return bellyShorteningWithBonesTenPercentCloser(scene, s);
+  };
+  ModelSettings model = settings(1.0).simulation.model;
+  model.fibre_tone = 1.0;
+  const double expected = -tonedShare(buildMassSpringSystem(scene.muscles, scene.bones, model), apart(-0.10));
+  const double passive = shortening(0.0), toned = shortening(1.0);
+  std::printf("bones 10 %% closer, tendon as soft as the belly: belly shortened %.1f %% passive, %.1f %% toned (its "
+              "rest length %.1f %%)\n", 100 * passive, 100 * toned, 100 * expected);
+  EXPECT_GT(expected, 0.14);  // the belly is a little shorter than 10 cm
+  EXPECT_LT(expected, 0.16);
+  EXPECT_NEAR(toned, expected, 0.005);
+  EXPECT_LT(passive, toned - 0.02);
+}
+
+TEST(Tendon, TheTonesRestLengthsFollowTheSpanAlongTheFibresOnlyAndComeBackAtRest) {
+  const HangingScene scene = hangingMuscle();
+  ModelSettings model;
+  model.particles_per_fibre = 10;
+  model.fibre_tone = 1.0;
+  MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model);
+  const BellyTone& tone = system.belly_tone;
+  ASSERT_FALSE(tone.empty());
+  for (const FibreSpan& span : tone.fibres) {
+    ASSERT_GE(span.first_anchor, 0);
+    // The fixed origin on the bottom bone to the site above the belly; the sampled fibre ends a little inside.
+    EXPECT_NEAR(span.rest_span_m, kBelly + kTendon, 1e-3);
+    EXPECT_GT(span.belly_length_m, 0.085);
+    EXPECT_LE(span.belly_length_m, kBelly);
+    EXPECT_EQ(system.fixed_bone[static_cast<std::size_t>(span.first_anchor)], 0);
+    EXPECT_EQ(system.fixed_bone[static_cast<std::size_t>(span.last_anchor)], 1);
+  }
+  const Eigen::VectorXd untoned = system.springs.rest_length;
+  EXPECT_FALSE(updateBellyTone(system, apart(0.0))) << "at rest the rest lengths are the model's";
+  ASSERT_TRUE(updateBellyTone(system, apart(0.10)));
+  const BoneTransforms moved = apart(0.10);
+  const auto fibreFactor = [&](std::int32_t f) {
+    const FibreSpan& span = tone.fibres[static_cast<std::size_t>(f)];
+    const Eigen::Vector3d first = system.rest_position.col(span.first_anchor);
+    const Eigen::Vector3d last = moved[1] * system.rest_position.col(span.last_anchor);
+    return 1.0 + ((first - last).norm() - span.rest_span_m) / span.belly_length_m;
+  };
+  int along = 0, across = 0;
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const auto e = static_cast<Eigen::Index>(s);
+    if (tone.first_fibre[s] < 0) {
+      EXPECT_EQ(system.springs.rest_length[e], untoned[e]) << "a tendon keeps its own rest length";
+      continue;
+    }
+    const Eigen::Vector3d d = system.rest_position.col(system.springs.second[s]) -
+                              system.rest_position.col(system.springs.first[s]);
+    const double cosine = std::abs(d.normalized().z());
+    const double factor = 0.5 * (fibreFactor(tone.first_fibre[s]) + fibreFactor(tone.second_fibre[s]));
+    if (cosine > 1 - 1e-9) {
+      EXPECT_GT(factor, 1.13);  // 14 mm more span on a belly of about 10 cm
+      EXPECT_NEAR(system.springs.rest_length[e], untoned[e] * factor, 1e-12);
+      ++along;
+    } else if (cosine < 1e-9) {
+      EXPECT_NEAR(system.springs.rest_length[e], untoned[e], 1e-12);
+      ++across;
+    }
+  }
+  EXPECT_GT(along, 0);
+  EXPECT_GT(across, 0);
+  ASSERT_TRUE(updateBellyTone(system, apart(0.0)));
+  EXPECT_LT((system.springs.rest_length - untoned).cwiseAbs().maxCoeff(), 1e-15);
+}
+
+TEST(Tendon, AToneOutsideZeroToTwoIsRefused) {
+  ModelSettings s;
+  for (const double tone : {-0.1, 2.5, std::nan("")}) {
+    s.fibre_tone = tone;
+    EXPECT_NE(validate(s).find("fibre_tone"), std::string::npos) << tone;
+  }
+  s.fibre_tone = 1.0;
+  EXPECT_TRUE(validate(s).empty());
+}

@@ -56,6 +56,69 @@ double tortuosity(const Eigen::Ref<const Eigen::Matrix3Xd>& fibre) {
 }
 }  // namespace
 
+BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain) {
+  BellyTone tone;
+  if (!(gain > 0)) return tone;
+  tone.gain = gain;
+  const std::size_t n = static_cast<std::size_t>(system.particleCount());
+  std::vector<std::int32_t> fibre_of_particle(n, -1);
+  // A fibre end's tendon: the spring joining it to an anchor (a particle of no fibre), and that spring's path.
+  std::vector<std::int32_t> anchor_of(n, -1);
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const std::int32_t a = system.springs.first[s], b = system.springs.second[s];
+    const bool a_anchor = system.fibre_of[static_cast<std::size_t>(a)] == kTendonAnchor;
+    const bool b_anchor = system.fibre_of[static_cast<std::size_t>(b)] == kTendonAnchor;
+    if (a_anchor != b_anchor) anchor_of[static_cast<std::size_t>(a_anchor ? b : a)] = a_anchor ? a : b;
+  }
+  std::vector<std::int32_t> path_of_anchor(n, -1);
+  for (std::size_t t = 0; t < system.tendon_paths.size(); ++t)
+    path_of_anchor[static_cast<std::size_t>(system.tendon_paths[t].anchor)] = static_cast<std::int32_t>(t);
+  const auto placedAtRest = [&](std::int32_t anchor) { return Eigen::Vector3d(system.rest_position.col(anchor)); };
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+    const auto fibre = static_cast<std::int32_t>(tone.fibres.size());
+    FibreSpan span;
+    const auto anchorOf = [&](Eigen::Index end) -> std::int32_t {
+      if (system.is_fixed[static_cast<std::size_t>(end)]) return static_cast<std::int32_t>(end);
+      return anchor_of[static_cast<std::size_t>(end)];
+    };
+    span.first_anchor = anchorOf(begin);
+    span.last_anchor = anchorOf(begin + count - 1);
+    for (Eigen::Index i = begin; i < begin + count; ++i) {
+      fibre_of_particle[static_cast<std::size_t>(i)] = fibre;
+      if (i > begin) span.belly_length_m += (system.rest_position.col(i) - system.rest_position.col(i - 1)).norm();
+    }
+    if (span.first_anchor >= 0 && span.last_anchor >= 0 && span.first_anchor != span.last_anchor) {
+      span.first_path = path_of_anchor[static_cast<std::size_t>(span.first_anchor)];
+      span.last_path = path_of_anchor[static_cast<std::size_t>(span.last_anchor)];
+      span.rest_span_m = (placedAtRest(span.first_anchor) - placedAtRest(span.last_anchor)).norm();
+      for (const std::int32_t path : {span.first_path, span.last_path})
+        if (path >= 0) {
+          const TendonPath& tendon = system.tendon_paths[static_cast<std::size_t>(path)];
+          Eigen::Vector3d previous = placedAtRest(tendon.anchor);
+          for (Eigen::Index k = 0; k < tendon.points.cols(); ++k) {
+            span.rest_span_m += (tendon.points.col(k) - previous).norm();
+            previous = tendon.points.col(k);
+          }
+        }
+    } else {
+      span.first_anchor = span.last_anchor = -1;  // not attached at both ends: no span to follow
+    }
+    tone.fibres.push_back(span);
+  });
+  const std::size_t springs = system.springs.size();
+  tone.first_fibre.assign(springs, -1);
+  tone.second_fibre.assign(springs, -1);
+  tone.alignment_squared.setZero(static_cast<Eigen::Index>(springs));
+  tone.untoned_rest_length = system.springs.rest_length;
+  for (std::size_t s = 0; s < springs; ++s) {
+    if (s >= alignment.size() || std::isnan(alignment[s])) continue;
+    tone.first_fibre[s] = fibre_of_particle[static_cast<std::size_t>(system.springs.first[s])];
+    tone.second_fibre[s] = fibre_of_particle[static_cast<std::size_t>(system.springs.second[s])];
+    tone.alignment_squared[static_cast<Eigen::Index>(s)] = alignment[s] * alignment[s];
+  }
+  return tone;
+}
+
 std::vector<Eigen::Matrix3Xd> fibrePolylines(const MassSpringSystem& system, const Eigen::Matrix3Xd& position) {
   std::vector<Eigen::Matrix3Xd> fibres;
   forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) { fibres.push_back(position.middleCols(begin, count)); });

@@ -30,6 +30,7 @@ std::string validate(const ModelSettings& s) {
     return "density_kg_per_m3 must be a finite value > 0";
   if (!(s.fibre_prestretch >= 0 && s.fibre_prestretch <= 0.5))
     return "fibre_prestretch must be in [0, 0.5]";
+  if (!(s.fibre_tone >= 0 && s.fibre_tone <= 2)) return "fibre_tone must be in [0, 2]";
   if (!(s.transverse_stiffness_ratio > 0 && s.transverse_stiffness_ratio <= 1))
     return "transverse_stiffness_ratio must be in (0, 1]";
   if (!(s.tendon_stiffness_ratio > 0) || !std::isfinite(s.tendon_stiffness_ratio))
@@ -734,10 +735,11 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     system.springs.stiffness[static_cast<Eigen::Index>(s)] = settings.spring_material_n / spring_rest[s];
   }
   for (const auto& [spring, stiffness] : tendon_stiffness) system.springs.stiffness[spring] = stiffness;
-  if (settings.transverse_stiffness_ratio < 1 || settings.fibre_prestretch > 0) {
+  if (settings.transverse_stiffness_ratio < 1 || settings.fibre_prestretch > 0 || settings.fibre_tone > 0) {
     const std::vector<double> alignment = fibreAlignments(system);
     if (settings.transverse_stiffness_ratio < 1) softenAcrossFibres(system, alignment, settings.transverse_stiffness_ratio);
     if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, alignment, settings.fibre_prestretch);
+    if (settings.fibre_tone > 0) system.belly_tone = buildBellyTone(system, alignment, settings.fibre_tone);
   }
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);

@@ -122,6 +122,41 @@ bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& tra
   return changed;
 }
 
+bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms) {
+  BellyTone& tone = system.belly_tone;
+  if (tone.empty()) return false;
+  const auto placed = [&](std::int32_t anchor) {
+    const int bone = system.fixed_bone[static_cast<std::size_t>(anchor)];
+    return bone != kNoBone && bone < static_cast<int>(transforms.size())
+               ? Eigen::Vector3d(transforms[static_cast<std::size_t>(bone)] * system.rest_position.col(anchor))
+               : Eigen::Vector3d(system.rest_position.col(anchor));
+  };
+  std::vector<double> factor(tone.fibres.size(), 1.0);
+  for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
+    const FibreSpan& span = tone.fibres[f];
+    if (span.first_anchor < 0 || !(span.belly_length_m > 0)) continue;
+    double length = (placed(span.first_anchor) - placed(span.last_anchor)).norm();
+    for (const std::int32_t path : {span.first_path, span.last_path})
+      if (path >= 0)
+        length += tendonPathBeyondAnchor(system, system.tendon_paths[static_cast<std::size_t>(path)], transforms);
+    const double change = tone.gain * (length - span.rest_span_m) / span.belly_length_m;
+    factor[f] = 1.0 + std::clamp(change, -kMaxToneChange, kMaxToneChange);
+  }
+  bool changed = false;
+  for (std::size_t s = 0; s < tone.first_fibre.size(); ++s) {
+    const std::int32_t a = tone.first_fibre[s], b = tone.second_fibre[s];
+    if (a < 0 || b < 0) continue;
+    const auto e = static_cast<Eigen::Index>(s);
+    const double f = 0.5 * (factor[static_cast<std::size_t>(a)] + factor[static_cast<std::size_t>(b)]);
+    const double rest = tone.untoned_rest_length[e] * (1.0 + tone.alignment_squared[e] * (f - 1.0));
+    if (rest != system.springs.rest_length[e]) {
+      system.springs.rest_length[e] = rest;
+      changed = true;
+    }
+  }
+  return changed;
+}
+
 ParticleState restState(const MassSpringSystem& system) {
   ParticleState state;
   state.position = system.rest_position;

@@ -217,7 +217,9 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   stats.warm_started = start == StartMode::warm && has_previous_;
   const bool drag = solver_->dragsTissue();
   // Tendons over bones beyond their anchor keep their whole length: their springs' rest lengths follow the pose.
-  if (updateTendonRestLengths(system_, transforms)) solver_->restLengthsChanged();
+  // The belly's tone: its rest length follows its attachments' span (ModelSettings::fibre_tone).
+  const bool tendons_changed = updateTendonRestLengths(system_, transforms);
+  if (updateBellyTone(system_, transforms) || tendons_changed) solver_->restLengthsChanged();
   const bool predict = drag && settings_.prediction.predict_start && stats.warm_started &&
                        correction_.cols() == system_.particleCount();
   ParticleState predicted;

@@ -74,6 +74,11 @@ std::vector<SettingSpec> buildTable() {
              "the belly's passive tension at its segmented length: its springs rest shorter by this share along the "
              "fibres, so that it shortens with its path when a joint lets its tendon go instead of going slack",
              [model](CoreSettings& s) -> double& { return model(s).fibre_prestretch; }),
+      number("fibre_tone", "", 0.0, 2.0,
+             "the belly's tone: each fibre's rest length follows this share of the change of the span between its "
+             "attachments as the bones carry them (1: all of it, as a rigid tendon passes a joint's motion to the belly; "
+             "0: none)",
+             [model](CoreSettings& s) -> double& { return model(s).fibre_tone; }),
       number("transverse_stiffness_ratio", "", 1e-3, 1.0,
              "the belly's stiffness across its fibres relative to along them (passive muscle's is about 1/20), so that "
              "it thickens cheaply as it shortens at constant volume; 1 = isotropic springs",
@@ -319,9 +324,11 @@ CoreSettings nodeDefaultSettings() {
   // With the belly soft across its fibres (below) its summed stiffness is smaller, and 0.5 ms lags 1.37 mm; 1 ms keeps
   // 0.63 mm (all 26, one sweep a frame, docs/lengths.md).
   settings.pipeline.simulation.block_descent.tissue_relaxation_s = 0.001;
-  // One: on thigh13 a warm frame from rest to 90 deg hip flexion ends 1.71 mm deep after its budget's one sweep,
-  // 0.19 mm after a second (12.4 ms in all); the bundled gait never asks for it.
-  settings.stream.stopping.deep_contact_sweeps = 1;
+  // On thigh13 a warm frame from rest to 90 deg hip flexion ends 1.71 mm deep after its budget's one sweep, 0.19 mm
+  // after a second (12.4 ms in all); a cold start at hip flexion 110 deg, knee 130 deg with the belly's tone 1.30 mm
+  // after its ten sweeps and one more, 0.21 mm after two more (stability bench, 2026-11-28). The bundled gait never
+  // asks for them.
+  settings.stream.stopping.deep_contact_sweeps = 2;
   // Three past the budget for a warm frame whose residual lies above three times the stream's typical one (stability
   // bench, thigh13, 2026-11-26): the gait played 4x faster then has a strain 99th percentile of 0.28 median instead of
   // 0.39 (the gait's 0.18), a kick 0.50 instead of 0.56; the 1-cycle gait takes 12 such sweeps in 73 frames at an
@@ -345,6 +352,10 @@ CoreSettings nodeDefaultSettings() {
   // the tie the pre-tensioned belly creeps towards its fibres' chords (8.4 mm RMS at rest after 600 frames).
   settings.pipeline.simulation.model.fibre_prestretch = 0.2;
   settings.pipeline.simulation.model.transverse_stiffness_ratio = 0.02;
+  // The belly's tone: its rest length takes its attachments' span change, as a tendon far stiffer than it would make it
+  // (docs/lengths.md, 2026-11-28: streamed 19 / 12 / 6 / 4 of 24 at r >= 0.8 / r >= 0.9 / in band / whole target against
+  // 18 / 10 / 5 / 3 without; converged 19 / 16 / 10 / 6 against 17 / 15 / 8 / 4; the frame 1.01x).
+  settings.pipeline.simulation.model.fibre_tone = 1.0;
   settings.pipeline.simulation.block_descent.across_fibre_tie = 0.03;
   // The tie bears the pre-tension's pull at rest, so that the segmented shape is the rest pose's equilibrium: without
   // it a cold start settled for a hundred frames and more (thigh13 at rest: 2.7 mm RMS, 18 mm at most).

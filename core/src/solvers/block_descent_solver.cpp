@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <map>
 #include <stdexcept>
@@ -297,7 +298,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     const std::size_t p = static_cast<std::size_t>(coloured_particles_[slot]);
     for (std::int32_t k = neighbour_begin_[p]; k < neighbour_begin_[p + 1]; ++k) {
       const std::int32_t spring = spring_of_entry[static_cast<std::size_t>(k)];
-      if (tendon_spring[static_cast<std::size_t>(spring)])
+      if (tendon_spring[static_cast<std::size_t>(spring)] || !system_.belly_tone.empty())
         tendon_entries_.emplace_back(spring, static_cast<std::int32_t>(visit_order.size()));
       visit_order.push_back(neighbours_[static_cast<std::size_t>(k)]);
     }
@@ -884,23 +885,50 @@ double BlockDescentSolver::frameEnergy(const Eigen::Matrix3Xd& position) const {
 }
 
 double BlockDescentSolver::energyWithoutVolume(const Eigen::Matrix3Xd& position) const {
+  // Summed in fixed chunks of the visiting order, the chunks' sums then in order: the same bits on any number of
+  // threads (a line search compares energies, and 1 and 2 threads must take the same steps).
+  const std::size_t slots = coloured_particles_.size();
+  const std::size_t chunk = (slots + kEnergyChunks - 1) / kEnergyChunks;
+  std::array<double, kEnergyChunks> chunk_energy{};
+#pragma omp parallel for num_threads(thread_count_) schedule(static)
+  for (int c = 0; c < kEnergyChunks; ++c) {
+    double energy = 0;
+    const std::size_t end = std::min(slots, (static_cast<std::size_t>(c) + 1) * chunk);
+    for (std::size_t slot = static_cast<std::size_t>(c) * chunk; slot < end; ++slot) {
+      const std::int32_t p = coloured_particles_[slot];
+      for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
+        const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+        // A spring between two free particles is listed at both ends.
+        const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
+        energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness, spring.rest_length);
+      }
+      energy += contactAndDragEnergy(p, position);
+    }
+    chunk_energy[static_cast<std::size_t>(c)] = energy;
+  }
   double energy = 0;
-  for (std::size_t slot = 0; slot < coloured_particles_.size(); ++slot) {
-    const std::int32_t p = coloured_particles_[slot];
-    const Eigen::Vector3d x = position.col(p);
-    for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
-      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
-      // A spring between two free particles is listed at both ends.
-      const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
-      energy += share * springEnergy(x, position.col(spring.other), spring.stiffness, spring.rest_length);
-    }
-    for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
-      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-      const double share = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)] ? 0.5 : 1.0;
-      energy += share * contactEnergy(x, atPositions(entry, position),
-                                      contactStiffnessOf(p, entry));
-    }
-    energy += dragEnergy(p, x, drag_anchor_->col(p));
+  for (const double part : chunk_energy) energy += part;
+  return energy;
+}
+
+double BlockDescentSolver::contactAndDragEnergy(std::int32_t p, const Eigen::Matrix3Xd& position) const {
+  const Eigen::Vector3d x = position.col(p);
+  double energy = 0;
+  for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
+    const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+    const double share = entry.partner >= 0 && !system_.is_fixed[static_cast<std::size_t>(entry.partner)] ? 0.5 : 1.0;
+    energy += share * contactEnergy(x, atPositions(entry, position), contactStiffnessOf(p, entry));
+  }
+  return energy + dragEnergy(p, x, drag_anchor_->col(p));
+}
+
+double BlockDescentSolver::springEnergyOf(std::int32_t p, const Eigen::Matrix3Xd& position) const {
+  const std::size_t slot = static_cast<std::size_t>(slot_of_[static_cast<std::size_t>(p)]);
+  double energy = 0;
+  for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
+    const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+    const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
+    energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness, spring.rest_length);
   }
   return energy;
 }
@@ -934,78 +962,143 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
   const int muscles = system_.muscleCount();
   const Eigen::Matrix3Xd along = fibreDirections(system_, position);
   if (along.cols() != position.cols()) return false;
-  // Hat function j of the position u along the fibre, with its knots spread evenly over [0, 1].
-  const auto hats = [modes](double u, Eigen::VectorXd& phi) {
-    phi.setZero(modes);
+  // Hat functions of the position u along the fibre, knots spread evenly over [0, 1]: at most two are non-zero, the
+  // knot below u (weight 1 - fraction) and the one above (fraction).
+  struct Hat {
+    int below;
+    double weight[2];
+  };
+  const auto hat = [modes](double u) {
     const double scaled = std::clamp(u, 0.0, 1.0) * (modes - 1);
     const int below = std::min(static_cast<int>(scaled), modes - 2);
     const double fraction = scaled - below;
-    phi[below] = 1.0 - fraction;
-    phi[below + 1] = fraction;
+    return Hat{below, {1.0 - fraction, fraction}};
   };
   const auto quadratic = [](const Block& b, const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
     return u.x() * (b.hxx * v.x() + b.hxy * v.y() + b.hxz * v.z()) +
            u.y() * (b.hxy * v.x() + b.hyy * v.y() + b.hyz * v.z()) +
            u.z() * (b.hxz * v.x() + b.hyz * v.y() + b.hzz * v.z());
   };
+  // Per muscle: the subspace Hessian (modes x modes, row-major), the force and the volume gradient along the modes,
+  // accumulated per fixed chunk of the free particles (in parallel) and the chunks then summed in order, so that any
+  // number of threads gives the same bits.
+  const std::size_t per_muscle = static_cast<std::size_t>(modes * modes + 2 * modes);
+  const std::size_t frees = free_particles_.size();
+  const std::size_t chunk = (frees + kEnergyChunks - 1) / kEnergyChunks;
+  fibre_accumulator_.assign(static_cast<std::size_t>(kEnergyChunks) * static_cast<std::size_t>(muscles) * per_muscle, 0.0);
+  const bool with_volume = volume_.active() && volume_gradient_.cols() == position.cols();
+#pragma omp parallel for num_threads(thread_count_) schedule(dynamic, 1)
+  for (int c = 0; c < kEnergyChunks; ++c) {
+    double* chunk_sums = fibre_accumulator_.data() + static_cast<std::size_t>(c) * static_cast<std::size_t>(muscles) * per_muscle;
+    const std::size_t end = std::min(frees, (static_cast<std::size_t>(c) + 1) * chunk);
+    double energy = 0;  // the frame energy without the volume term, at the step's start
+    for (std::size_t f = static_cast<std::size_t>(c) * chunk; f < end; ++f) {
+      const std::int32_t p = free_particles_[f];
+      const std::size_t pk = static_cast<std::size_t>(p);
+      const Eigen::Vector3d t = along.col(p);
+      energy += contactAndDragEnergy(p, position);
+      if (t.squaredNorm() == 0) {
+        energy += springEnergyOf(p, position);
+        continue;
+      }
+      const std::size_t m = static_cast<std::size_t>(system_.muscle_of[pk]);
+      double* hessian = chunk_sums + m * per_muscle;
+      double* force = hessian + modes * modes;
+      double* volume_along = force + modes;
+      const Hat phi = hat(fibre_parameter_[p]);
+      // H += value x (phi_a phi_b^T + phi_b phi_a^T) over the two hats' non-zeros (a cross term of two particles).
+      const auto addOuter = [&](const Hat& a, const Hat& b, double value) {
+        for (int i = 0; i < 2; ++i)
+          for (int j = 0; j < 2; ++j) {
+            const double v = value * a.weight[i] * b.weight[j];
+            hessian[(a.below + i) * modes + b.below + j] += v;
+            hessian[(b.below + j) * modes + a.below + i] += v;
+          }
+      };
+      const std::int32_t slot = slot_of_[pk];
+      const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
+      Block total;      // the forces of the terms other than springs
+      double f_along = 0;  // the springs' force along p's fibre
+      double own = 0;      // the p-p blocks of p's energy terms, seen along p's fibre
+      const auto addOwn = [&](const Block& term) {
+        total.fx += term.fx;
+        total.fy += term.fy;
+        total.fz += term.fz;
+        own += quadratic(term, t, t);
+      };
+      for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
+        const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+        const double* xo = position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other);
+        const Eigen::Vector3d d(xp[0] - xo[0], xp[1] - xo[1], xp[2] - xo[2]);
+        const double length_squared = d.squaredNorm();
+        const std::size_t ok = static_cast<std::size_t>(spring.other);
+        // The spring's energy (listed at both ends between two free particles), and its force and projected Hessian
+        // (addSpring: k t I + k (1 - t) / l^2 d d^T, t = max(0, 1 - l0 / l)) seen along the fibres only.
+        double isotropic = spring.stiffness, outer = 0;
+        if (length_squared > 0.0) {
+          const double inverse_length = 1.0 / std::sqrt(length_squared);
+          const double stretch = 1.0 - spring.rest_length * inverse_length;
+          const double transverse = 0.5 * (stretch + std::abs(stretch));
+          isotropic = spring.stiffness * transverse;
+          outer = spring.stiffness * (1.0 - transverse) * inverse_length * inverse_length;
+          const double pull = spring.stiffness * stretch;
+          f_along -= pull * t.dot(d);
+          const double extension = length_squared * inverse_length - spring.rest_length;
+          energy += (system_.is_fixed[ok] ? 0.5 : 0.25) * spring.stiffness * extension * extension;
+        }
+        const double t_d = t.dot(d);
+        own += isotropic + outer * t_d * t_d;
+        // The cross term once per free pair (from its lower-numbered end), the other's own term from its own visit.
+        if (system_.is_fixed[ok] || spring.other < p || system_.muscle_of[ok] != system_.muscle_of[pk]) continue;
+        const Eigen::Vector3d t_other = along.col(spring.other);
+        if (t_other.squaredNorm() == 0) continue;
+        const Hat phi_other = hat(fibre_parameter_[spring.other]);
+        addOuter(phi, phi_other, -(isotropic * t.dot(t_other) + outer * t_d * t_other.dot(d)));
+      }
+      const Eigen::Vector3d x = position.col(p);
+      for (std::int32_t e = contact_begin_[pk]; e < contact_begin_[pk + 1]; ++e) {
+        const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
+        Block block;
+        addContact(x, atPositions(entry, position),
+                   contactStiffnessOf(p, entry), 1.0, block);
+        addOwn(block);  // the partner held (a stiffer, safe model)
+      }
+      Block drag;
+      addDrag(drag_weight_[p], drag_along_, dragDirection(p), x, drag_anchor_->col(p), drag);
+      drag.addIsotropic(regularisation_[p]);
+      addOwn(drag);
+      for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 2; ++j) hessian[(phi.below + i) * modes + phi.below + j] += own * phi.weight[i] * phi.weight[j];
+      if (with_volume && volume_.stiffness[m] > 0) {
+        const double g_along = volume_gradient_.col(p).dot(t);
+        for (int i = 0; i < 2; ++i) volume_along[phi.below + i] += g_along * phi.weight[i];
+        const double pressure = volume_.stiffness[m] * (volume_now_[m] - volume_.target(m));
+        total.fx -= pressure * volume_gradient_(0, p);
+        total.fy -= pressure * volume_gradient_(1, p);
+        total.fz -= pressure * volume_gradient_(2, p);
+      }
+      f_along += t.x() * total.fx + t.y() * total.fy + t.z() * total.fz;
+      for (int i = 0; i < 2; ++i) force[phi.below + i] += f_along * phi.weight[i];
+    }
+    fibre_start_energy_[static_cast<std::size_t>(c)] = energy;
+  }
   std::vector<Eigen::MatrixXd> hessian(static_cast<std::size_t>(muscles), Eigen::MatrixXd::Zero(modes, modes));
   std::vector<Eigen::VectorXd> force(static_cast<std::size_t>(muscles), Eigen::VectorXd::Zero(modes));
   std::vector<Eigen::VectorXd> volume_along(static_cast<std::size_t>(muscles), Eigen::VectorXd::Zero(modes));
-  Eigen::VectorXd phi, phi_other;
-  for (const std::int32_t p : free_particles_) {
-    const std::size_t pk = static_cast<std::size_t>(p);
-    const Eigen::Vector3d t = along.col(p);
-    if (t.squaredNorm() == 0) continue;
-    const std::size_t m = static_cast<std::size_t>(system_.muscle_of[pk]);
-    hats(fibre_parameter_[p], phi);
-    const std::int32_t slot = slot_of_[pk];
-    const double* xp = position.data() + 3 * static_cast<std::ptrdiff_t>(p);
-    Block total;
-    // A term of p's energy: its force on p, and its Hessian's p-p block seen along p's fibre.
-    const auto addOwn = [&](const Block& term) {
-      total.fx += term.fx;
-      total.fy += term.fy;
-      total.fz += term.fz;
-      hessian[m] += quadratic(term, t, t) * phi * phi.transpose();
-    };
-    for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
-      const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
-      Block block;
-      addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
-                spring.rest_length, block);
-      // The spring's Hessian is [H -H; -H H] over (p, other): p's own term here, the cross term once per free pair
-      // (from its lower-numbered end), the other's own term from its own visit.
-      addOwn(block);
-      const std::size_t ok = static_cast<std::size_t>(spring.other);
-      if (system_.is_fixed[ok] || spring.other < p || system_.muscle_of[ok] != system_.muscle_of[pk]) continue;
-      const Eigen::Vector3d t_other = along.col(spring.other);
-      if (t_other.squaredNorm() == 0) continue;
-      hats(fibre_parameter_[spring.other], phi_other);
-      const double cross = quadratic(block, t, t_other);
-      hessian[m] -= cross * (phi * phi_other.transpose() + phi_other * phi.transpose());
+  for (int c = 0; c < kEnergyChunks; ++c)
+    for (std::size_t m = 0; m < static_cast<std::size_t>(muscles); ++m) {
+      const double* sums = fibre_accumulator_.data() + (static_cast<std::size_t>(c) * static_cast<std::size_t>(muscles) + m) * per_muscle;
+      hessian[m] += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(sums, modes, modes);
+      force[m] += Eigen::Map<const Eigen::VectorXd>(sums + modes * modes, modes);
+      volume_along[m] += Eigen::Map<const Eigen::VectorXd>(sums + modes * modes + modes, modes);
     }
-    const Eigen::Vector3d x = position.col(p);
-    for (std::int32_t e = contact_begin_[pk]; e < contact_begin_[pk + 1]; ++e) {
-      const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
-      Block block;
-      addContact(x, atPositions(entry, position),
-                 contactStiffnessOf(p, entry), 1.0, block);
-      addOwn(block);  // the partner held (a stiffer, safe model)
-    }
-    Block drag;
-    addDrag(drag_weight_[p], drag_along_, dragDirection(p), x, drag_anchor_->col(p), drag);
-    drag.addIsotropic(regularisation_[p]);
-    addOwn(drag);
-    if (volume_.active() && volume_gradient_.cols() == position.cols() && volume_.stiffness[m] > 0) {
-      const double g_along = volume_gradient_.col(p).dot(t);
-      volume_along[m] += g_along * phi;
-      const double pressure = volume_.stiffness[m] * (volume_now_[m] - volume_.target(m));
-      total.fx -= pressure * volume_gradient_(0, p);
-      total.fy -= pressure * volume_gradient_(1, p);
-      total.fz -= pressure * volume_gradient_(2, p);
-    }
-    force[m] += (t.x() * total.fx + t.y() * total.fy + t.z() * total.fz) * phi;
-  }
+  Eigen::VectorXd phi(modes);
+  const auto hats = [&](double u, Eigen::VectorXd& out) {
+    const Hat h = hat(u);
+    out.setZero(modes);
+    out[h.below] = h.weight[0];
+    out[h.below + 1] = h.weight[1];
+  };
   std::vector<Eigen::VectorXd> amplitude(static_cast<std::size_t>(muscles));
   bool any = false;
   for (std::size_t m = 0; m < static_cast<std::size_t>(muscles); ++m) {
@@ -1042,7 +1135,8 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
     for (std::size_t m = 0; m < volumes.size(); ++m) volumes[m] += s * volume_change[m];
     return volumeEnergyOf(volumes);
   };
-  const double start_energy = energyWithoutVolume(position) + volumeEnergyAfter(0);
+  double start_energy = volumeEnergyAfter(0);
+  for (const double part : fibre_start_energy_) start_energy += part;
   for (int halving = 0; halving < 4; ++halving, scale *= 0.5) {
     fibre_trial_ = position + scale * fibre_step_;
     if (energyWithoutVolume(fibre_trial_) + volumeEnergyAfter(scale) < start_energy) {

@@ -537,6 +537,13 @@ void LocalGlobalSolver::quasiNewtonIterations(ParticleState& state, const Stoppi
 
 void LocalGlobalSolver::restLengthsChanged() {
   // Rest lengths enter the local projections only, not the prefactored matrix.
+  if (!system_.belly_tone.empty()) {
+    for (std::size_t spring = 0; spring < spring_entry_.size(); ++spring) {
+      const std::int32_t entry = spring_entry_[spring];
+      if (entry >= 0) springs_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[static_cast<Eigen::Index>(spring)];
+    }
+    return;
+  }
   for (const TendonPath& tendon : system_.tendon_paths) {
     const std::int32_t entry = spring_entry_[static_cast<std::size_t>(tendon.spring)];
     if (entry >= 0) springs_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[tendon.spring];

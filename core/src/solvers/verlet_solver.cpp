@@ -108,6 +108,11 @@ std::size_t VerletSolver::solverBytes() const {
 
 void VerletSolver::restLengthsChanged() {
   // Packed in spring order (packSprings): the tendon's spring is entry `spring`.
+  if (!system_.belly_tone.empty()) {
+    for (std::size_t s = 0; s < packed_springs_.size(); ++s)
+      packed_springs_[s].rest_length = system_.springs.rest_length[static_cast<Eigen::Index>(s)];
+    return;
+  }
   for (const TendonPath& tendon : system_.tendon_paths)
     packed_springs_[static_cast<std::size_t>(tendon.spring)].rest_length = system_.springs.rest_length[tendon.spring];
 }

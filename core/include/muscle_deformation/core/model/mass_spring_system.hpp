@@ -42,6 +42,29 @@ struct TendonPath {
   double length_m = 0;                 // the tendon's whole rest length: fibre end to site along the path
 };
 
+// One fibre's attachments, for the belly's tone (BellyTone): the particles fixed to its bones at its two ends (the
+// fibre's own end when it is fixed there, else its tendon's anchor) and the tendon paths that run on past them.
+struct FibreSpan {
+  std::int32_t first_anchor = -1, last_anchor = -1;  // fixed particles
+  std::int32_t first_path = -1, last_path = -1;      // index into tendon_paths; -1: none
+  double rest_span_m = 0;     // anchor to anchor, plus the paths beyond them, at rest
+  double belly_length_m = 0;  // the fibre's arc length at rest
+};
+
+// The belly's tone (ModelSettings::fibre_tone): each fibre's rest length follows the change of the span between its
+// attachments as the bones carry them (a stiff tendon passes the joint's motion to the belly), along the fibres only.
+// Empty (gain 0): the rest lengths are the model's.
+struct BellyTone {
+  double gain = 0;  // share of the span's change the belly's rest length takes (1: all of it)
+  std::vector<FibreSpan> fibres;  // every fibre of every muscle, in particle order
+  // Per spring: the fibres of its two particles (indices into `fibres`; -1: not the belly's), the square of its
+  // alignment with the fibres, and its rest length without the tone.
+  std::vector<std::int32_t> first_fibre, second_fibre;
+  Eigen::VectorXd alignment_squared;
+  Eigen::VectorXd untoned_rest_length;
+  bool empty() const { return gain == 0 || fibres.empty(); }
+};
+
 struct MassSpringSystem {
   // Rest configuration (scene frame, metres) and per-particle properties.
   Eigen::Matrix3Xd rest_position = Eigen::Matrix3Xd(3, 0);
@@ -64,6 +87,7 @@ struct MassSpringSystem {
 
   SpringSet springs;
   std::vector<TendonPath> tendon_paths;  // tendons whose path goes on past their anchor (ModelSettings::tendons)
+  BellyTone belly_tone;  // ModelSettings::fibre_tone
 
   Eigen::Index particleCount() const { return rest_position.cols(); }
   int muscleCount() const { return static_cast<int>(muscle_name.size()); }
@@ -93,6 +117,10 @@ struct ParticleState {
 // net force there, reversed (N; zero on fixed particles). Zero for springs at their rest length; a pre-tensioned belly
 // (SpringSet::prestretch_factor) has it where its fibres curve and where they meet their tendons.
 Eigen::Matrix3Xd restBalanceForces(const MassSpringSystem& system);
+
+// The belly's tone at `gain` (BellyTone), from the springs' `alignment` with the fibres (NaN: not the belly's). Call
+// after the tendons and the rest lengths are final.
+BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain);
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
 // anchors left out.

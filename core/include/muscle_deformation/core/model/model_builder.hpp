@@ -41,6 +41,13 @@ struct ModelSettings {
   // (0 = the segmented length is the rest length, the seeds' model). A belly at rest length goes slack when a joint
   // shortens its path; one under tension shortens with it.
   double fibre_prestretch = 0.0;
+  // The belly's tone: each fibre's rest length along the fibres follows this share of the change of the span between
+  // its two attachments as the bones carry them (plus its tendons' paths beyond their anchors), relative to its belly's
+  // length (0 = none, the passive belly; 1 = all of it, as a tendon far stiffer than the belly passes the joint's
+  // motion to it). A muscle in gait is active: its fibres take the length its path leaves them, while its tendon,
+  // ~10^3 x stiffer than passive muscle, hardly stretches (in a Hill model with a rigid tendon the fibre length is the
+  // path length less the tendon's). Clamped to +-25 % of the belly's length (kMaxToneChange).
+  double fibre_tone = 0.0;
   // The belly's stiffness across its fibres relative to along them: a spring's stiffness is material / rest length x
   // (a^2 + ratio (1 - a^2)), a its alignment with the fibres. Passive muscle is transversely isotropic, its tensile
   // modulus across the fibres about 1/20 of that along them (22 against 447 kPa, Morrow et al. 2010, J Mech Behav

@@ -37,6 +37,16 @@ constexpr double kMinTendonRestLengthM = 1e-4;
 double tendonPathBeyondAnchor(const MassSpringSystem& system, const TendonPath& tendon, const BoneTransforms& transforms);
 bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& transforms);
 
+// The belly's tone (system.belly_tone): each fibre's span between its attachments in the pose against its rest span;
+// the belly's springs' rest lengths become their untoned ones x (1 + a^2 (f - 1)), with f = 1 + gain x (span change)
+// / belly length, the mean over the spring's two fibres, clamped to [1 - kMaxToneChange, 1 + kMaxToneChange]. True if
+// any changed (SoftBodySolver::restLengthsChanged).
+// 0.25: the gait's lengths against gait2392 are the same as at 0.4, and the iliacus in hip flexion to 1.5 rad, whose
+// span shrinks by more, loses 3.5 % of its volume instead of 4.7 % (fidelity bench, 2026-11-28); muscle fibres work
+// within about +-25-40 % of their optimal length.
+constexpr double kMaxToneChange = 0.25;
+bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms);
+
 // State at rest: positions = rest positions, zero velocity.
 ParticleState restState(const MassSpringSystem& system);
 

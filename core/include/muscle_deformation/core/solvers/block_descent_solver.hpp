@@ -28,6 +28,7 @@
 #include <Eigen/Core>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <string>
@@ -260,7 +261,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   std::vector<std::int32_t> neighbour_begin_;  // per particle, into neighbours_ (while building)
   std::vector<NeighbourSpring> neighbours_;      // each free particle's springs, in visiting order
   std::vector<std::int32_t> slot_spring_begin_;  // per visiting slot (index into coloured_particles_), into neighbours_
-  // The entries of neighbours_ of each tendon spring with a path (system.tendon_paths): (spring, entry).
+  // The entries of neighbours_ whose rest length changes with the pose, (spring, entry): each tendon spring with a path
+  // (system.tendon_paths), and every spring when the belly has a tone (system.belly_tone).
   std::vector<std::pair<std::int32_t, std::int32_t>> tendon_entries_;
   std::vector<std::int32_t> colour_of_;        // per particle, -1 for fixed ones
   std::vector<std::int32_t> colour_begin_;     // into coloured_particles_
@@ -341,12 +343,20 @@ class BlockDescentSolver final : public SoftBodySolver {
   Eigen::VectorXd fibre_parameter_;
   std::vector<std::int32_t> slot_of_;
   Eigen::Matrix3Xd fibre_step_, fibre_trial_;
+  // Fixed chunks of the particles that the frame energy and the coarse step's sums are split into for the threads,
+  // summed in order afterwards: the same bits on any number of threads.
+  static constexpr int kEnergyChunks = 64;
+  std::vector<double> fibre_accumulator_;  // fibreModeStep's per-chunk sums
+  std::array<double, kEnergyChunks> fibre_start_energy_{};  // fibreModeStep's per-chunk frame energy at its start
   void buildFibreModes();
   // One coarse step at `position` (contacts and the volume term as the sweep about to run sees them); true when it
   // lowered the frame energy and was kept.
   bool fibreModeStep(Eigen::Matrix3Xd& position);
   // The frame energy without the volume term (springs, contacts as listed, drag).
   double energyWithoutVolume(const Eigen::Matrix3Xd& position) const;
+  // Free particle p's share of the frame energy: its contacts and its drag; its springs (each listed at both ends).
+  double contactAndDragEnergy(std::int32_t p, const Eigen::Matrix3Xd& position) const;
+  double springEnergyOf(std::int32_t p, const Eigen::Matrix3Xd& position) const;
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
   double last_residual_ = 0.0;
 };
