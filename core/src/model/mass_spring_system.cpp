@@ -1,6 +1,7 @@
 #include "muscle_deformation/core/model/mass_spring_system.hpp"
 
 #include "muscle_deformation/core/base/median.hpp"
+#include "muscle_deformation/core/model/rigid_pretransform.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -73,7 +74,6 @@ BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<doubl
   std::vector<std::int32_t> path_of_anchor(n, -1);
   for (std::size_t t = 0; t < system.tendon_paths.size(); ++t)
     path_of_anchor[static_cast<std::size_t>(system.tendon_paths[t].anchor)] = static_cast<std::int32_t>(t);
-  const auto placedAtRest = [&](std::int32_t anchor) { return Eigen::Vector3d(system.rest_position.col(anchor)); };
   forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
     const auto fibre = static_cast<std::int32_t>(tone.fibres.size());
     FibreSpan span;
@@ -90,16 +90,7 @@ BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<doubl
     if (span.first_anchor >= 0 && span.last_anchor >= 0 && span.first_anchor != span.last_anchor) {
       span.first_path = path_of_anchor[static_cast<std::size_t>(span.first_anchor)];
       span.last_path = path_of_anchor[static_cast<std::size_t>(span.last_anchor)];
-      span.rest_span_m = (placedAtRest(span.first_anchor) - placedAtRest(span.last_anchor)).norm();
-      for (const std::int32_t path : {span.first_path, span.last_path})
-        if (path >= 0) {
-          const TendonPath& tendon = system.tendon_paths[static_cast<std::size_t>(path)];
-          Eigen::Vector3d previous = placedAtRest(tendon.anchor);
-          for (Eigen::Index k = 0; k < tendon.points.cols(); ++k) {
-            span.rest_span_m += (tendon.points.col(k) - previous).norm();
-            previous = tendon.points.col(k);
-          }
-        }
+      span.rest_span_m = fibreSpanLength(system, span, {});
     } else {
       span.first_anchor = span.last_anchor = -1;  // not attached at both ends: no span to follow
     }

@@ -93,15 +93,19 @@ void moveAttachments(const MassSpringSystem& system, const BoneTransforms& trans
   }
 }
 
+namespace {
+// A point given at rest on `bone`, where the pose puts it (at rest for no bone, or a pose without that bone).
+Eigen::Vector3d placed(int bone, const Eigen::Vector3d& rest, const BoneTransforms& transforms) {
+  return bone != kNoBone && bone < static_cast<int>(transforms.size()) ? Eigen::Vector3d(transforms[bone] * rest) : rest;
+}
+}  // namespace
+
 double tendonPathBeyondAnchor(const MassSpringSystem& system, const TendonPath& tendon, const BoneTransforms& transforms) {
-  const auto placed = [&](int bone, const Eigen::Vector3d& rest) {
-    return bone != kNoBone && bone < static_cast<int>(transforms.size()) ? Eigen::Vector3d(transforms[bone] * rest) : rest;
-  };
-  Eigen::Vector3d previous =
-      placed(system.fixed_bone[static_cast<std::size_t>(tendon.anchor)], system.rest_position.col(tendon.anchor));
+  Eigen::Vector3d previous = placed(system.fixed_bone[static_cast<std::size_t>(tendon.anchor)],
+                                    system.rest_position.col(tendon.anchor), transforms);
   double length = 0;
   for (std::size_t k = 0; k < tendon.bones.size(); ++k) {
-    const Eigen::Vector3d next = placed(tendon.bones[k], tendon.points.col(static_cast<Eigen::Index>(k)));
+    const Eigen::Vector3d next = placed(tendon.bones[k], tendon.points.col(static_cast<Eigen::Index>(k)), transforms);
     length += (next - previous).norm();
     previous = next;
   }
@@ -122,24 +126,24 @@ bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& tra
   return changed;
 }
 
+double fibreSpanLength(const MassSpringSystem& system, const FibreSpan& span, const BoneTransforms& transforms) {
+  const auto anchorAt = [&](std::int32_t anchor) {
+    return placed(system.fixed_bone[static_cast<std::size_t>(anchor)], system.rest_position.col(anchor), transforms);
+  };
+  double length = (anchorAt(span.first_anchor) - anchorAt(span.last_anchor)).norm();
+  for (const std::int32_t path : {span.first_path, span.last_path})
+    if (path >= 0) length += tendonPathBeyondAnchor(system, system.tendon_paths[static_cast<std::size_t>(path)], transforms);
+  return length;
+}
+
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms) {
   BellyTone& tone = system.belly_tone;
   if (tone.empty()) return false;
-  const auto placed = [&](std::int32_t anchor) {
-    const int bone = system.fixed_bone[static_cast<std::size_t>(anchor)];
-    return bone != kNoBone && bone < static_cast<int>(transforms.size())
-               ? Eigen::Vector3d(transforms[static_cast<std::size_t>(bone)] * system.rest_position.col(anchor))
-               : Eigen::Vector3d(system.rest_position.col(anchor));
-  };
   std::vector<double> factor(tone.fibres.size(), 1.0);
   for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
     const FibreSpan& span = tone.fibres[f];
     if (span.first_anchor < 0 || !(span.belly_length_m > 0)) continue;
-    double length = (placed(span.first_anchor) - placed(span.last_anchor)).norm();
-    for (const std::int32_t path : {span.first_path, span.last_path})
-      if (path >= 0)
-        length += tendonPathBeyondAnchor(system, system.tendon_paths[static_cast<std::size_t>(path)], transforms);
-    const double change = tone.gain * (length - span.rest_span_m) / span.belly_length_m;
+    const double change = tone.gain * (fibreSpanLength(system, span, transforms) - span.rest_span_m) / span.belly_length_m;
     factor[f] = 1.0 + std::clamp(change, -kMaxToneChange, kMaxToneChange);
   }
   bool changed = false;

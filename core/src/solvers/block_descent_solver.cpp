@@ -299,7 +299,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
     for (std::int32_t k = neighbour_begin_[p]; k < neighbour_begin_[p + 1]; ++k) {
       const std::int32_t spring = spring_of_entry[static_cast<std::size_t>(k)];
       if (tendon_spring[static_cast<std::size_t>(spring)] || !system_.belly_tone.empty())
-        tendon_entries_.emplace_back(spring, static_cast<std::int32_t>(visit_order.size()));
+        pose_dependent_entries_.emplace_back(spring, static_cast<std::int32_t>(visit_order.size()));
       visit_order.push_back(neighbours_[static_cast<std::size_t>(k)]);
     }
     slot_spring_begin_[slot + 1] = static_cast<std::int32_t>(visit_order.size());
@@ -414,7 +414,7 @@ double BlockDescentSolver::volumeEnergyOf(const std::vector<double>& volumes) co
 }
 
 void BlockDescentSolver::restLengthsChanged() {
-  for (const auto& [spring, entry] : tendon_entries_)
+  for (const auto& [spring, entry] : pose_dependent_entries_)
     neighbours_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[spring];
 }
 
@@ -896,13 +896,7 @@ double BlockDescentSolver::energyWithoutVolume(const Eigen::Matrix3Xd& position)
     const std::size_t end = std::min(slots, (static_cast<std::size_t>(c) + 1) * chunk);
     for (std::size_t slot = static_cast<std::size_t>(c) * chunk; slot < end; ++slot) {
       const std::int32_t p = coloured_particles_[slot];
-      for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
-        const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
-        // A spring between two free particles is listed at both ends.
-        const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
-        energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness, spring.rest_length);
-      }
-      energy += contactAndDragEnergy(p, position);
+      energy += springEnergyAtSlot(slot, position) + contactAndDragEnergy(p, position);
     }
     chunk_energy[static_cast<std::size_t>(c)] = energy;
   }
@@ -922,11 +916,12 @@ double BlockDescentSolver::contactAndDragEnergy(std::int32_t p, const Eigen::Mat
   return energy + dragEnergy(p, x, drag_anchor_->col(p));
 }
 
-double BlockDescentSolver::springEnergyOf(std::int32_t p, const Eigen::Matrix3Xd& position) const {
-  const std::size_t slot = static_cast<std::size_t>(slot_of_[static_cast<std::size_t>(p)]);
+double BlockDescentSolver::springEnergyAtSlot(std::size_t slot, const Eigen::Matrix3Xd& position) const {
+  const std::int32_t p = coloured_particles_[slot];
   double energy = 0;
   for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
     const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+    // A spring between two free particles is listed at both ends.
     const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
     energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness, spring.rest_length);
   }
@@ -998,7 +993,7 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
       const Eigen::Vector3d t = along.col(p);
       energy += contactAndDragEnergy(p, position);
       if (t.squaredNorm() == 0) {
-        energy += springEnergyOf(p, position);
+        energy += springEnergyAtSlot(static_cast<std::size_t>(slot_of_[pk]), position);
         continue;
       }
       const std::size_t m = static_cast<std::size_t>(system_.muscle_of[pk]);

@@ -263,7 +263,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   std::vector<std::int32_t> slot_spring_begin_;  // per visiting slot (index into coloured_particles_), into neighbours_
   // The entries of neighbours_ whose rest length changes with the pose, (spring, entry): each tendon spring with a path
   // (system.tendon_paths), and every spring when the belly has a tone (system.belly_tone).
-  std::vector<std::pair<std::int32_t, std::int32_t>> tendon_entries_;
+  std::vector<std::pair<std::int32_t, std::int32_t>> pose_dependent_entries_;
   std::vector<std::int32_t> colour_of_;        // per particle, -1 for fixed ones
   std::vector<std::int32_t> colour_begin_;     // into coloured_particles_
   std::vector<std::int32_t> coloured_particles_;
@@ -356,7 +356,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   double energyWithoutVolume(const Eigen::Matrix3Xd& position) const;
   // Free particle p's share of the frame energy: its contacts and its drag; its springs (each listed at both ends).
   double contactAndDragEnergy(std::int32_t p, const Eigen::Matrix3Xd& position) const;
-  double springEnergyOf(std::int32_t p, const Eigen::Matrix3Xd& position) const;
+  double springEnergyAtSlot(std::size_t slot, const Eigen::Matrix3Xd& position) const;  // the particle visited there
   Eigen::Matrix3Xd chebyshev_older_, chebyshev_previous_, entry_position_;
   double last_residual_ = 0.0;
 };
