@@ -31,9 +31,14 @@
 
 namespace bench {
 
-// Per muscle and frame (m): the mean belly length of its fibres and the mean belly + tendon length.
+// Per muscle and frame (m): the mean belly length of its fibres and the mean belly + tendon length; and the length
+// the belly's tone aims at (`spanned`): the mean, over the fibres attached at both ends, of the fibre's rest belly
+// length plus its attachment span's change (anchors carried by their bones, through the muscle's belly path, tendon
+// paths beyond them: fibreSpanLength), the whole
+// change and without the tone's limit (empty when the tone is off). It tells a miss of the attachments and paths
+// (the span itself does not follow gait2392) from a miss inside the model (the span does, the belly does not).
 struct MuscleLengths {
-  std::vector<std::vector<double>> belly, whole;  // [muscle][frame]
+  std::vector<std::vector<double>> belly, whole, spanned;  // [muscle][frame]
   // Whether the fibres kept their line (an arc length measures a muscle's length only then), the worst frame.
   WorstFolding folding;
 };
@@ -48,6 +53,19 @@ inline void addLengthsOf(const muscle_deformation::DeformationPipeline& pipeline
   if (lengths.belly.empty()) {
     lengths.belly.resize(static_cast<std::size_t>(muscles));
     lengths.whole.resize(static_cast<std::size_t>(muscles));
+    lengths.spanned.resize(static_cast<std::size_t>(muscles));
+  }
+  if (!system.belly_tone.empty()) {
+    std::vector<double> sum(static_cast<std::size_t>(muscles), 0.0);
+    std::vector<int> count(static_cast<std::size_t>(muscles), 0);
+    for (const FibreSpan& span : system.belly_tone.fibres) {
+      if (span.first_anchor < 0) continue;
+      const auto m = static_cast<std::size_t>(span.muscle);
+      sum[m] += span.belly_length_m + fibreSpanLength(system, system.belly_tone, span, pipeline.boneTransforms()) - span.rest_span_m;
+      ++count[m];
+    }
+    for (std::size_t m = 0; m < sum.size(); ++m)
+      if (count[m] > 0) lengths.spanned[m].push_back(sum[m] / count[m]);
   }
   // Tendon length beyond each anchor (via points to the site), by anchor particle.
   std::vector<double> beyond(static_cast<std::size_t>(system.particleCount()), 0.0);

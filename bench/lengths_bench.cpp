@@ -106,7 +106,10 @@ int main(int argc, char** argv) {
     for (const auto& [label, lengths] : {std::pair<std::string, const bench::MuscleLengths*>{"", &stream_lengths},
                                          std::pair<std::string, const bench::MuscleLengths*>{"converged_", &converged_lengths}}) {
       for (const auto& [part, series] : {std::pair<std::string, const std::vector<double>*>{"", &lengths->belly[m]},
-                                          std::pair<std::string, const std::vector<double>*>{"with_tendon_", &lengths->whole[m]}}) {
+                                          std::pair<std::string, const std::vector<double>*>{"with_tendon_", &lengths->whole[m]},
+                                          std::pair<std::string, const std::vector<double>*>{"spanned_", &lengths->spanned[m]}}) {
+        // The span is the bones' and paths' alone: the same in both streams, recorded once.
+        if (part == "spanned_" && (!label.empty() || series->size() != frames)) continue;
         const std::string prefix = label + part;
         const Eigen::VectorXd product_slopes = slopes(gait_angles, *series);
         records.add(prefix + "r", bench::correlation(*series, reference_length));
@@ -126,6 +129,13 @@ int main(int argc, char** argv) {
                 1e3 * bench::range(reference_length), bench::range(stream_lengths.belly[m]) / bench::range(reference_length),
                 bench::range(converged_lengths.belly[m]) / bench::range(reference_length), 1e3 * s[3],
                 1e3 * reference_slopes[3], 1e3 * s[0], 1e3 * reference_slopes[0]);
+    if (stream_lengths.spanned[m].size() == frames) {
+      const Eigen::VectorXd span_slopes = slopes(gait_angles, stream_lengths.spanned[m]);
+      std::printf("  %-28s its attachment span: r %.3f, excursion x%.2f, knee %.0f mm/rad, hip flexion %.0f\n", "",
+                  bench::correlation(stream_lengths.spanned[m], reference_length),
+                  bench::range(stream_lengths.spanned[m]) / bench::range(reference_length), 1e3 * span_slopes[3],
+                  1e3 * span_slopes[0]);
+    }
     std::fflush(stdout);
   }
   // Whether the fibres kept their line over the gait, both streams (the arc lengths above measure a muscle's length only

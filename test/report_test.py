@@ -163,6 +163,13 @@ class LengthTarget(unittest.TestCase):
         self.assertIn("**1 of 2** muscles meet it streamed", text)
         self.assertIn("No counterpart in gait2392: obturator.", text)
 
+    def test_the_span_the_tone_aims_at_is_the_json_s_and_absent_where_not_measured(self):
+        spanned = length_row("a", 0.95, 40.0, 45.0)
+        spanned.update(spanned_r=0.987, spanned_range_ratio=1.04)
+        text = "\n".join(bench_report.lengths_section([spanned, length_row("b", 0.95, 40.0, 45.0)]))
+        self.assertIn("| 0.95 | 0.99 (x1.04) | 40.0 / 45.0", text)
+        self.assertIn("| 0.95 | - | 40.0 / 45.0", text)
+
     def test_the_fibres_folding_over_the_gait_is_stated_both_ways_and_is_no_muscle(self):
         folding = {"fibre_folding": "worst frame", "folded_fibres_max": 12.0, "most_folded_muscle": "gracilis",
                    "fibre_tortuosity_ratio_max": 1.42, "most_tortuous_muscle": "psoas",

@@ -372,14 +372,20 @@ def lengths_section(rows):
              "the four right-leg joint angles. Target (issue 26): r >= 0.9, excursion 0.7-1.3 x the reference's "
              "(within 3 mm where it moves < 10 mm), each joint's slope with gait2392's sign where that exceeds 5 mm/rad. "
              f"**{len(meeting)} of {len(compared)}** muscles meet it streamed, {len(meeting_converged)} converged. "
+             "*span*: what the belly's tone aims at, each fibre's rest belly length plus the change of the span "
+             "between its attachments as the bones carry them (through the muscle's belly path, tendon paths beyond), "
+             "r and excursion ratio against gait2392: where the span follows gait2392 and the belly does not, the "
+             "miss is inside the model; where the span does not, it is in the attachments. "
              "Raw numbers: `out/bench/lengths.json`.", "",
-             "| muscle | gait2392 | r stream / converged | r with tendon | excursion mm product / reference (x) | "
+             "| muscle | gait2392 | r stream / converged | r with tendon | span r (excursion x) | "
+             "excursion mm product / reference (x) | "
              "knee mm/rad product / reference | hip flexion mm/rad product / reference | misses (stream) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in compared:
         misses = length_target_misses(r)
+        span = (f"{r['spanned_r']:.2f} (x{r['spanned_range_ratio']:.2f})" if "spanned_r" in r else "-")
         lines.append(f"| {r['muscle']} | {r['reference']} | {r['r']:.2f} / {r['converged_r']:.2f} | "
-                     f"{r['with_tendon_r']:.2f} | {r['range_mm_product']:.1f} / {r['range_mm_reference']:.1f} "
+                     f"{r['with_tendon_r']:.2f} | {span} | {r['range_mm_product']:.1f} / {r['range_mm_reference']:.1f} "
                      f"(x{r['range_ratio']:.2f}) | {r['mm_per_rad_product_knee_angle_r']:.0f} / "
                      f"{r['mm_per_rad_reference_knee_angle_r']:.0f} | {r['mm_per_rad_product_hip_flexion_r']:.0f} / "
                      f"{r['mm_per_rad_reference_hip_flexion_r']:.0f} | {', '.join(misses) if misses else 'meets'} |")

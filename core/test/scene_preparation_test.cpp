@@ -282,8 +282,13 @@ TEST(AttachmentSites, ViaPointsGoToTheTendonOnTheirSideOfTheBellyAndThoseTheBell
   EXPECT_EQ(paths.insertion_path[1].label, "I");
   EXPECT_EQ(paths.insertion_path[1].site.link, "upper");
   EXPECT_TRUE(paths.insertion_path[1].site.point.isApprox(Eigen::Vector3d(0, 0, -0.04)));  // in its link's frame
-  EXPECT_CONTAINS(paths.source(), "V2 left out: inside the belly");
-  EXPECT_CONTAINS(paths.source(), "V3 left out: within the belly's extent along the path");
+  EXPECT_CONTAINS(paths.source(), "V2 left out: inside the belly (on the belly's path)");
+  EXPECT_CONTAINS(paths.source(), "V3 left out: within the belly's extent along the path (on the belly's path)");
+  // Those the belly covers are the line its fibres follow, in path order.
+  ASSERT_EQ(paths.belly_path.size(), 2u);
+  EXPECT_EQ(paths.belly_path[0].label, "V2");
+  EXPECT_EQ(paths.belly_path[1].label, "V3");
+  EXPECT_TRUE(paths.belly_path[1].site.point.isApprox(Eigen::Vector3d(0.03, 0, 0.06)));
 
   // A site inside the belly: its side gets no tendon path (the fibre ends there lie on the bone).
   std::vector<md::PathCandidate> inside = path;

@@ -7,6 +7,7 @@
 #include "muscle_deformation/core/solvers/solve_control.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
@@ -345,6 +346,80 @@ TEST(Tendon, TheTonesRestLengthsFollowTheSpanAlongTheFibresOnlyAndComeBackAtRest
   EXPECT_GT(across, 0);
   ASSERT_TRUE(updateBellyTone(system, apart(0.0)));
   EXPECT_LT((system.springs.rest_length - untoned).cwiseAbs().maxCoeff(), 1e-15);
+}
+
+// A belly that bends round a bone (the iliacus over the pelvic brim) follows the line through the point it bends at,
+// not the straight line between its attachments: its span runs from the first anchor through the muscle's belly path
+// (points carried by their bones) to the last anchor. Here the path point sits on the bottom bone beside the belly's
+// middle, and the top bone moves sideways: the span changes as the segment from that point to the top anchor does.
+TEST(Tendon, TheTonesSpanRunsThroughTheBellyPathPointsEachCarriedByItsBone) {
+  HangingScene scene = hangingMuscle();
+  const Eigen::Vector3d bend(0.02, 0.0, 0.05);
+  scene.muscles[0].belly_path = {{"bottom", bend}};
+  ModelSettings model;
+  model.particles_per_fibre = 10;
+  model.fibre_tone = 1.0;
+  MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model);
+  const BellyTone& tone = system.belly_tone;
+  ASSERT_EQ(tone.belly_paths.size(), 1u);
+  ASSERT_EQ(tone.belly_paths[0].bones, std::vector<std::int32_t>{0});
+  Eigen::Isometry3d sideways = Eigen::Isometry3d::Identity();
+  sideways.translation() = Eigen::Vector3d(0.03, 0, 0);
+  const BoneTransforms moved = {Eigen::Isometry3d::Identity(), sideways};
+  const Eigen::Vector3d site(0, 0, kBelly + kTendon);
+  int spans = 0;
+  for (const FibreSpan& span : tone.fibres) {
+    ASSERT_GE(span.first_anchor, 0);
+    EXPECT_EQ(span.muscle, 0);
+    const Eigen::Vector3d first = system.rest_position.col(span.first_anchor);
+    const Eigen::Vector3d last = system.rest_position.col(span.last_anchor);
+    const double beyond = (site - last).norm();  // the insertion tendon's path past its anchor, rigid with the top bone
+    EXPECT_NEAR(span.rest_span_m, (bend - first).norm() + (last - bend).norm() + beyond, 1e-12);
+    EXPECT_NEAR(fibreSpanLength(system, tone, span, moved),
+                (bend - first).norm() + (sideways * last - bend).norm() + beyond, 1e-12);
+    // The straight line would not see the bend: the two spans differ by more than a millimetre here.
+    EXPECT_GT(std::abs(fibreSpanLength(system, tone, span, moved) - span.rest_span_m -
+                       ((sideways * last - first).norm() - (last - first).norm())),
+              1e-3);
+    ++spans;
+  }
+  EXPECT_GT(spans, 0);
+  // A belly path naming a bone the model lacks is refused by name.
+  scene.muscles[0].belly_path = {{"nowhere", bend}};
+  EXPECT_CONTAINS(muscle_deformation::testing::errorMessageOf<ModelError>(
+                      [&] { buildMassSpringSystem(scene.muscles, scene.bones, model); }),
+                  "belly path names bone 'nowhere'");
+}
+
+// On real anatomy: the bundled iliacus bends over the pelvic brim (its belly path: gait2392's via points the belly
+// covers, two on the pelvis, one on the femur). Hip flexion shortens its path, as in gait2392 (-41 mm/rad at rest); the
+// straight line from its fossa anchors to the lesser trochanter passes behind the brim and lengthens instead.
+TEST(Tendon, TheBundledIliacusSpanShortensInHipFlexionAlongItsBellyPath) {
+  const BundledScene bundled = loadBundledScene(MD_PACKAGE_DIR, {"iliacus"});
+  ASSERT_EQ(bundled.scene.muscles.size(), 1u);
+  ASSERT_EQ(bundled.scene.muscles[0].belly_path.size(), 3u);
+  ModelSettings model;
+  model.fibre_tone = 1.0;
+  const MassSpringSystem system = buildMassSpringSystem(bundled.scene.muscles, bundled.scene.bones, model);
+  const BellyTone& tone = system.belly_tone;
+  const BoneTransforms flexed = boneTransformsOf(bundled.scene.bones, poseFor(bundled, {{"hip_flexion_r", 0.5}}));
+  BellyTone straight = tone;
+  straight.belly_paths.clear();
+  double along_path = 0, straight_line = 0;
+  int spans = 0;
+  for (const FibreSpan& span : tone.fibres) {
+    if (span.first_anchor < 0) continue;
+    along_path += fibreSpanLength(system, tone, span, flexed) - span.rest_span_m;
+    straight_line += fibreSpanLength(system, straight, span, flexed) - fibreSpanLength(system, straight, span, {});
+    ++spans;
+  }
+  ASSERT_GT(spans, 0);
+  along_path /= spans;
+  straight_line /= spans;
+  std::printf("iliacus, hip flexion 0.5 rad: mean span change %.1f mm along its belly path, %+.1f mm straight\n",
+              1e3 * along_path, 1e3 * straight_line);
+  EXPECT_LT(along_path, -0.010);  // gait2392: about -20 mm over 0.5 rad
+  EXPECT_GT(straight_line, along_path + 0.010);
 }
 
 TEST(Tendon, AToneOutsideZeroToTwoIsRefused) {

@@ -735,10 +735,13 @@ YAML_HEADER = """\
 #                           {link: URDF link, point: [x, y, z] in that link's frame, m}
 #     insertion_path        tendon path at the insertion, from the belly towards the bone: the
 #                           via points, then the insertion site (entries as above)
+#     belly_path            optional: the via points the belly covers, from origin to
+#                           insertion (entries as above): the line the belly's fibres follow,
+#                           along which the belly's tone measures the span between its tendons
 #     reference_muscles     the gait2392 musculotendon(s) the sites come from, for length
 #                           comparisons ([] when none: the obturators)
 #     sites_source          how each point was obtained (text)
-#                           These four are written by tools/scene/sites.py from gait2392's path
+#                           These five are written by tools/scene/sites.py from gait2392's path
 #                           points, mapped into the scene as the bones were (data/README.md,
 #                           "Attachment sites").
 #     particles_per_fibre   optional: particles sampled along each of this muscle's fibres

@@ -392,8 +392,11 @@ come from gait2392's path points (data/NOTICE).
   kept {kept}; left out {dropped}.
 - **Belly.** The muscle's fibre ends are projected onto the registered path;
   a via point between the belly's two ends (median of the projections), or
-  inside the muscle surface, is covered by the belly and left out: the tendon
-  runs outward from the belly's end. A site inside the belly, passed by it by
+  inside the muscle surface, is covered by the belly and left out of the
+  tendons: the tendon runs outward from the belly's end. Those covered points
+  are the muscle's `belly_path`, the line its belly follows where it bends
+  round a bone (the iliacus over the pelvic brim): the belly's tone measures
+  each fibre's span along it. A site inside the belly, passed by it by
   more than {rules["cover_margin"]:.0f} mm, or more than {rules["snap_far"]:.0f} mm off a bone its fibres end on
   (median under {rules["fleshy"]:.0f} mm), gives way to the fleshy site: the point of that
   link's bones nearest the fibre ends' centroid (the vasti arise higher on the

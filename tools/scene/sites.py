@@ -9,6 +9,9 @@ by point):
                      passes on its way to the belly ({link, point}: m, link frame)
   insertion_path     the via points from the belly towards the insertion, then
                      the insertion site
+  belly_path         the via points the belly covers, in path order (left out of
+                     the tendons' paths; the line the belly's fibres follow, which
+                     the belly's tone measures its span along)
   reference_muscles  the gait2392 counterpart(s), for length comparisons
   sites_source       how each point was obtained
 
@@ -527,7 +530,8 @@ def median_arc(Q, X):
 
 def build_muscle(path, ends_o, ends_i, surf, bones, tuberosity, shared=None):
     """Origin and insertion paths of one muscle from its registered gait2392 path (None: no counterpart)
-    and its fibre ends. Returns (origin_path, insertion_path, notes)."""
+    and its fibre ends. Returns (origin_path, insertion_path, belly_path, notes): belly_path holds the via points
+    the belly covers, in path order (the line the belly's fibres follow between the two tendons)."""
     c_o, c_i = ends_o.mean(0), ends_i.mean(0)
     notes = []
 
@@ -555,7 +559,7 @@ def build_muscle(path, ends_o, ends_i, surf, bones, tuberosity, shared=None):
         # not in gait2392 (obturators): fleshy attachments at both ends, except where a tendon joins
         # another muscle's (SHARED_INSERTION)
         ins = [on_bone(shared)] if shared is not None else [fleshy("femur_r", c_i, "insertion")]
-        return [fleshy("pelvis", c_o, "origin")], ins, notes
+        return [fleshy("pelvis", c_o, "origin")], ins, [], notes
     for s in path:
         if s.how == "moving":
             d, x, _ = bones.closest(s.scene, s.link)
@@ -590,17 +594,20 @@ def build_muscle(path, ends_o, ends_i, surf, bones, tuberosity, shared=None):
     origin = [fleshy(path[0].link, c_o, "origin")] if why_o else [on_bone(path[0])]
     insertion = [fleshy(path[-1].link, c_i, "insertion")] if why_i else [on_bone(path[-1])]
     notes += [w for w in (why_o, why_i) if w]
+    belly = []
     for k in range(1, n - 1):
         s = path[k]
         if inside[k]:
             notes.append("%s dropped: inside the belly" % s.label)
+            belly.append(s)
         elif not why_o and s_pts[k] < s_o:
             origin.append(s)
         elif not why_i and s_pts[k] > s_i:
             insertion.insert(len(insertion) - 1, s)
         else:
             notes.append("%s dropped: within the belly's extent along the path" % s.label)
-    return origin, insertion, notes
+            belly.append(s)
+    return origin, insertion, belly, notes
 
 
 def belly_end_link(bones, c, attachment):
@@ -704,7 +711,7 @@ def compute(pkg, params, root, muscles):
             pp = next(p for p in path_points(root, g2) if p.name == "%s-%s" % (g2, label))
             shared = Site("%s %s" % (g2, label), BODY_TO_LINK[pp.body], reg.scene(pp.body, pp.location({})),
                           "shared")
-        origin, insertion, notes = build_muscle(path, ends_o, ends_i, surf, bones, tuberosity, shared)
+        origin, insertion, belly, notes = build_muscle(path, ends_o, ends_i, surf, bones, tuberosity, shared)
         c_o, c_i = ends_o.mean(0), ends_i.mean(0)
         att_i = PATELLA_STAND_IN if any(s.link == PATELLA_STAND_IN for s in insertion) else insertion[-1].link
         link_o, _ = belly_end_link(bones, c_o, origin[0].link)
@@ -728,7 +735,7 @@ def compute(pkg, params, root, muscles):
         L = path_lengths(poses, pts)
         tendon_rest = (polyline_length([s.scene for s in origin] + [c_o])
                        + polyline_length([c_i] + [s.scene for s in insertion]))
-        r = {"bundles": bl, "counterpart": g, "origin": origin, "insertion": insertion, "notes": notes,
+        r = {"bundles": bl, "counterpart": g, "origin": origin, "insertion": insertion, "belly": belly, "notes": notes,
              "conditional": decisions, "belly_end_links": [link_o, link_i], "checks": checks, "ordered": ordered,
              "length": L, "rest_length": path_lengths([{l: (np.eye(3), LO[l]) for l in LO}], pts)[0],
              "tendon_rest": tendon_rest}
@@ -759,7 +766,7 @@ def compute(pkg, params, root, muscles):
 # the scene file's keys and the report
 # ---------------------------------------------------------------------------
 
-SITE_KEYS = ("origin_path", "insertion_path", "reference_muscles", "sites_source")
+SITE_KEYS = ("origin_path", "insertion_path", "belly_path", "reference_muscles", "sites_source")
 BODY_HOW = {"pelvis": "by the pelvis registration", "femur_r": "by the femur registration",
             "tibia_r": "through the femur registration and gait2392's knee at knee_angle_r = %g (tibia scale %s)"}
 
@@ -827,10 +834,12 @@ def yaml_keys(r, reg):
 
     def entry(s):
         return FlowMap(link=s.link, point=[float("%.*g" % (DIGITS, v)) + 0.0 for v in s.scene - LO[s.link]])
-    return {"origin_path": [entry(s) for s in r["origin"]],
-            "insertion_path": [entry(s) for s in r["insertion"]],
-            "reference_muscles": list(r["bundles"]),
-            "sites_source": source_text(r, reg)}
+    keys = {"origin_path": [entry(s) for s in r["origin"]],
+            "insertion_path": [entry(s) for s in r["insertion"]]}
+    if r["belly"]:
+        keys["belly_path"] = [entry(s) for s in r["belly"]]
+    keys.update({"reference_muscles": list(r["bundles"]), "sites_source": source_text(r, reg)})
+    return keys
 
 
 def reference_model(reg):

@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -57,10 +59,15 @@ double tortuosity(const Eigen::Ref<const Eigen::Matrix3Xd>& fibre) {
 }
 }  // namespace
 
-BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain) {
+BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain,
+                         std::vector<BellyPath> belly_paths) {
   BellyTone tone;
   if (!(gain > 0)) return tone;
   tone.gain = gain;
+  if (!belly_paths.empty() && belly_paths.size() != static_cast<std::size_t>(system.muscleCount()))
+    throw std::invalid_argument("belly tone: " + std::to_string(belly_paths.size()) + " belly paths for " +
+                                std::to_string(system.muscleCount()) + " muscles");
+  tone.belly_paths = std::move(belly_paths);
   const std::size_t n = static_cast<std::size_t>(system.particleCount());
   std::vector<std::int32_t> fibre_of_particle(n, -1);
   // A fibre end's tendon: the spring joining it to an anchor (a particle of no fibre), and that spring's path.
@@ -90,7 +97,8 @@ BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<doubl
     if (span.first_anchor >= 0 && span.last_anchor >= 0 && span.first_anchor != span.last_anchor) {
       span.first_path = path_of_anchor[static_cast<std::size_t>(span.first_anchor)];
       span.last_path = path_of_anchor[static_cast<std::size_t>(span.last_anchor)];
-      span.rest_span_m = fibreSpanLength(system, span, {});
+      span.muscle = system.muscle_of[static_cast<std::size_t>(begin)];
+      span.rest_span_m = fibreSpanLength(system, tone, span, {});
     } else {
       span.first_anchor = span.last_anchor = -1;  // not attached at both ends: no span to follow
     }

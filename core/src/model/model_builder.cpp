@@ -304,6 +304,24 @@ struct PendingTendon {
   std::vector<std::pair<int, Eigen::Vector3d>> path;
 };
 
+// Each muscle's belly path (Muscle::belly_path) with its points' bone indices.
+std::vector<BellyPath> bellyPaths(const std::vector<Muscle>& muscles, const std::vector<Bone>& bones) {
+  std::vector<BellyPath> paths(muscles.size());
+  for (std::size_t m = 0; m < muscles.size(); ++m) {
+    const std::vector<AttachmentSite>& sites = muscles[m].belly_path;
+    paths[m].points.resize(3, static_cast<Eigen::Index>(sites.size()));
+    for (std::size_t k = 0; k < sites.size(); ++k) {
+      const auto bone = std::find_if(bones.begin(), bones.end(), [&](const Bone& b) { return b.name == sites[k].bone; });
+      if (bone == bones.end())
+        throw ModelError("muscle '" + muscles[m].name + "': its belly path names bone '" + sites[k].bone +
+                         "', which is not among the bones");
+      paths[m].bones.push_back(static_cast<std::int32_t>(bone - bones.begin()));
+      paths[m].points.col(static_cast<Eigen::Index>(k)) = sites[k].point;
+    }
+  }
+  return paths;
+}
+
 // Per spring, the cosine of its angle with the fibres' local direction at its two particles at rest; NaN for a spring
 // that is not the belly's (a tendon or a tendon anchor's) or has no direction.
 std::vector<double> fibreAlignments(const MassSpringSystem& system) {
@@ -739,7 +757,7 @@ MassSpringSystem buildMassSpringSystem(const std::vector<Muscle>& muscles, const
     const std::vector<double> alignment = fibreAlignments(system);
     if (settings.transverse_stiffness_ratio < 1) softenAcrossFibres(system, alignment, settings.transverse_stiffness_ratio);
     if (settings.fibre_prestretch > 0) prestretchAlongFibres(system, alignment, settings.fibre_prestretch);
-    if (settings.fibre_tone > 0) system.belly_tone = buildBellyTone(system, alignment, settings.fibre_tone);
+    if (settings.fibre_tone > 0) system.belly_tone = buildBellyTone(system, alignment, settings.fibre_tone, bellyPaths(muscles, bones));
   }
   // Collision spheres of the boundary particles (the seeds' radius heuristic); the adaptive time step uses them too.
   const std::vector<MuscleRadiiSummary> radii = assignCollisionRadii(system, muscles);

@@ -126,11 +126,22 @@ bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& tra
   return changed;
 }
 
-double fibreSpanLength(const MassSpringSystem& system, const FibreSpan& span, const BoneTransforms& transforms) {
+double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, const FibreSpan& span,
+                       const BoneTransforms& transforms) {
   const auto anchorAt = [&](std::int32_t anchor) {
     return placed(system.fixed_bone[static_cast<std::size_t>(anchor)], system.rest_position.col(anchor), transforms);
   };
-  double length = (anchorAt(span.first_anchor) - anchorAt(span.last_anchor)).norm();
+  double length = 0;
+  Eigen::Vector3d previous = anchorAt(span.first_anchor);
+  if (span.muscle >= 0 && static_cast<std::size_t>(span.muscle) < tone.belly_paths.size()) {
+    const BellyPath& path = tone.belly_paths[static_cast<std::size_t>(span.muscle)];
+    for (std::size_t k = 0; k < path.bones.size(); ++k) {
+      const Eigen::Vector3d next = placed(path.bones[k], path.points.col(static_cast<Eigen::Index>(k)), transforms);
+      length += (next - previous).norm();
+      previous = next;
+    }
+  }
+  length += (anchorAt(span.last_anchor) - previous).norm();
   for (const std::int32_t path : {span.first_path, span.last_path})
     if (path >= 0) length += tendonPathBeyondAnchor(system, system.tendon_paths[static_cast<std::size_t>(path)], transforms);
   return length;
@@ -143,7 +154,7 @@ bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms)
   for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
     const FibreSpan& span = tone.fibres[f];
     if (span.first_anchor < 0 || !(span.belly_length_m > 0)) continue;
-    const double change = tone.gain * (fibreSpanLength(system, span, transforms) - span.rest_span_m) / span.belly_length_m;
+    const double change = tone.gain * (fibreSpanLength(system, tone, span, transforms) - span.rest_span_m) / span.belly_length_m;
     factor[f] = 1.0 + std::clamp(change, -kMaxToneChange, kMaxToneChange);
   }
   bool changed = false;

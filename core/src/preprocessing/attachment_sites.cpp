@@ -234,13 +234,15 @@ TendonPaths placeAgainstBelly(const std::vector<PathCandidate>& candidates, cons
     } else if (c.role == PathCandidate::Role::insertion_site) {
       if (insertion_open) paths.insertion_path.push_back(placed(c));
     } else if (inside[k]) {
-      paths.notes.push_back(c.label + " left out: inside the belly");
+      paths.belly_path.push_back(placed(c));
+      paths.notes.push_back(c.label + " left out: inside the belly (on the belly's path)");
     } else if (origin_open && arcs[k] < origin_end) {
       paths.origin_path.push_back(placed(c));
     } else if (insertion_open && arcs[k] > insertion_end) {
       paths.insertion_path.push_back(placed(c));  // the insertion site comes last in path order
     } else {
-      paths.notes.push_back(c.label + " left out: within the belly's extent along the path");
+      paths.belly_path.push_back(placed(c));
+      paths.notes.push_back(c.label + " left out: within the belly's extent along the path (on the belly's path)");
     }
   }
   return paths;

@@ -31,6 +31,13 @@ std::string coordinate(double metres) {
 
 std::string millimetres(double metres) { return fixed(metres * 1e3, 1) + " mm"; }
 
+// Sites as the scene file's list items, each point in its link's frame (metres).
+void writeSites(std::ostream& y, const std::vector<PreparedSite>& sites) {
+  for (const PreparedSite& site : sites)
+    y << "  - {link: " << doubleQuoted(site.site.link) << ", point: [" << coordinate(site.site.point.x()) << ", "
+      << coordinate(site.site.point.y()) << ", " << coordinate(site.site.point.z()) << "]}\n";
+}
+
 std::string colourList(const std::array<float, 4>& colour) {
   std::string out = "[";
   for (std::size_t k = 0; k < colour.size(); ++k) out += (k ? ", " : "") + fixed(colour[k], 2);
@@ -92,9 +99,12 @@ std::string sceneYaml(const ScenePreparation& p) {
     for (const auto& [key, path] : {std::pair{"origin_path", &m.sites.origin_path},
                                     std::pair{"insertion_path", &m.sites.insertion_path}}) {
       y << "  " << key << ":" << (path->empty() ? " []" : "") << "\n";
-      for (const PreparedSite& site : *path)
-        y << "  - {link: " << doubleQuoted(site.site.link) << ", point: [" << coordinate(site.site.point.x()) << ", "
-          << coordinate(site.site.point.y()) << ", " << coordinate(site.site.point.z()) << "]}\n";
+      writeSites(y, *path);
+    }
+    // The via points the belly covers: the line its tone measures each fibre's span along.
+    if (!m.sites.belly_path.empty()) {
+      y << "  belly_path:\n";
+      writeSites(y, m.sites.belly_path);
     }
     y << "  reference_muscles: [";
     for (std::size_t k = 0; k < m.sites.reference_muscles.size(); ++k)

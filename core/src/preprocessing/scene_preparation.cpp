@@ -247,7 +247,8 @@ std::vector<Muscle> modelMuscles(const ScenePreparation& preparation,
     muscle.origin_bone = prepared.source.origin_link;
     muscle.insertion_bone = prepared.source.insertion_link;
     for (const auto& [sites, path] : {std::pair{&prepared.sites.origin_path, &muscle.origin_path},
-                                      std::pair{&prepared.sites.insertion_path, &muscle.insertion_path}})
+                                      std::pair{&prepared.sites.insertion_path, &muscle.insertion_path},
+                                      std::pair{&prepared.sites.belly_path, &muscle.belly_path}})
       for (const PreparedSite& site : *sites)
         path->push_back({site.site.link, rest_link_poses.at(site.site.link) * site.site.point});
     muscles.push_back(std::move(muscle));

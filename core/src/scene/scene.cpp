@@ -113,6 +113,7 @@ MuscleDescription parseMuscle(const YAML::Node& node, std::size_t index, const s
   }
   m.origin_path = parseSitePath(node, "origin_path", path, named);
   m.insertion_path = parseSitePath(node, "insertion_path", path, named);
+  m.belly_path = parseSitePath(node, "belly_path", path, named);
   const YAML::Node references = node["reference_muscles"];
   if (references.IsDefined() && !references.IsNull()) {
     if (!references.IsSequence())
@@ -311,7 +312,7 @@ std::vector<std::string> linksMissingFrom(const SceneDescription& description, c
   for (const MuscleDescription& m : description.muscles) {
     check(m.origin_bone);
     check(m.insertion_bone);
-    for (const std::vector<SitePoint>* tendon : {&m.origin_path, &m.insertion_path})
+    for (const std::vector<SitePoint>* tendon : {&m.origin_path, &m.insertion_path, &m.belly_path})
       for (const SitePoint& site : *tendon) check(site.link);
   }
   return missing;
@@ -459,13 +460,14 @@ Scene loadScene(const SceneDescription& description, const Skeleton& skeleton, c
         const auto rest = scene.rest_link_poses.find(site.link);
         if (!bone_names.count(site.link) || rest == scene.rest_link_poses.end())
           throw SceneError(description.path + ": muscle '" + m.name + "': " + key + " names link '" + site.link +
-                           "', which has no <collision> mesh in the URDF, so no bone to attach a tendon to");
+                           "', which has no <collision> mesh in the URDF, so no bone to carry the point");
         points.push_back({site.link, rest->second * site.point});
       }
       return points;
     };
     muscle.origin_path = placed(m.origin_path, "origin_path");
     muscle.insertion_path = placed(m.insertion_path, "insertion_path");
+    muscle.belly_path = placed(m.belly_path, "belly_path");
     // package:// and file:// URIs go through the caller's resolver, as the URDF's meshes do; plain paths start at
     // the scene file's folder.
     std::string surface_path, fibre_path;

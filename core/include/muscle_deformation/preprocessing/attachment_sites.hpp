@@ -55,6 +55,9 @@ struct PreparedSite {
 // belly; insertion_path: the via points from the belly, then the site), and what was left out and why.
 struct TendonPaths {
   std::vector<PreparedSite> origin_path, insertion_path;
+  // The via points the belly covers (inside it, or beside it within its extent along the path), in path order: the
+  // line its fibres follow between the tendons (the scene's `belly_path`, Muscle::belly_path).
+  std::vector<PreparedSite> belly_path;
   std::vector<std::string> reference_muscles;  // the OpenSim muscle the points come from (empty: none)
   std::vector<std::string> notes;
   bool empty() const { return origin_path.empty() && insertion_path.empty(); }

@@ -35,6 +35,11 @@ struct Muscle {
   // insertion site (the first point nearest the belly). Empty: a fibre end away from its bone hangs from the bone's
   // nearest point (ModelSettings::tendons).
   std::vector<AttachmentSite> origin_path, insertion_path;
+  // The line the belly's fibres follow between its tendons where it bends round a bone (the reference path's via
+  // points the belly covers, e.g. the iliacus over the pelvic brim), from origin to insertion, each carried by its
+  // bone. The belly's tone measures each fibre's span along it (ModelSettings::fibre_tone); empty: the straight line
+  // between the fibre's attachments.
+  std::vector<AttachmentSite> belly_path;
   // Particles sampled along each of this muscle's fibres; 0 = the model's (ModelSettings::particles_per_fibre). A
   // scene models each muscle only as finely as its error target needs (a small, stiff muscle keeps its shape with
   // fewer particles than a long, bending one).

@@ -42,12 +42,20 @@ struct TendonPath {
   double length_m = 0;                 // the tendon's whole rest length: fibre end to site along the path
 };
 
+// The line a muscle's belly follows between its tendons where it bends round a bone (Muscle::belly_path), from
+// origin to insertion: points carried rigidly by their bones, at rest in the scene frame.
+struct BellyPath {
+  std::vector<std::int32_t> bones;
+  Eigen::Matrix3Xd points = Eigen::Matrix3Xd(3, 0);
+};
+
 // One fibre's attachments, for the belly's tone (BellyTone): the particles fixed to its bones at its two ends (the
 // fibre's own end when it is fixed there, else its tendon's anchor) and the tendon paths that run on past them.
 struct FibreSpan {
   std::int32_t first_anchor = -1, last_anchor = -1;  // fixed particles
   std::int32_t first_path = -1, last_path = -1;      // index into tendon_paths; -1: none
-  double rest_span_m = 0;     // anchor to anchor, plus the paths beyond them, at rest
+  std::int32_t muscle = -1;   // its muscle: the belly path between the anchors (BellyTone::belly_paths)
+  double rest_span_m = 0;     // anchor to anchor (along the belly path), plus the paths beyond them, at rest
   double belly_length_m = 0;  // the fibre's arc length at rest
 };
 
@@ -57,6 +65,9 @@ struct FibreSpan {
 struct BellyTone {
   double gain = 0;  // share of the span's change the belly's rest length takes (1: all of it)
   std::vector<FibreSpan> fibres;  // every fibre of every muscle, in particle order
+  // Per muscle (or empty): the belly path a fibre's span runs along from its first anchor to its last; no points:
+  // the straight line.
+  std::vector<BellyPath> belly_paths;
   // Per spring: the fibres of its two particles (indices into `fibres`; -1: not the belly's), the square of its
   // alignment with the fibres, and its rest length without the tone.
   std::vector<std::int32_t> first_fibre, second_fibre;
@@ -118,9 +129,10 @@ struct ParticleState {
 // (SpringSet::prestretch_factor) has it where its fibres curve and where they meet their tendons.
 Eigen::Matrix3Xd restBalanceForces(const MassSpringSystem& system);
 
-// The belly's tone at `gain` (BellyTone), from the springs' `alignment` with the fibres (NaN: not the belly's). Call
-// after the tendons and the rest lengths are final.
-BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain);
+// The belly's tone at `gain` (BellyTone), from the springs' `alignment` with the fibres (NaN: not the belly's) and the
+// muscles' belly paths (per muscle, or empty: straight spans). Call after the tendons and the rest lengths are final.
+BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain,
+                         std::vector<BellyPath> belly_paths = {});
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
 // anchors left out.

@@ -45,8 +45,10 @@ bool updateTendonRestLengths(MassSpringSystem& system, const BoneTransforms& tra
 // span shrinks by more, loses 3.5 % of its volume instead of 4.7 % (fidelity bench, 2026-11-28); muscle fibres work
 // within about +-25-40 % of their optimal length.
 constexpr double kMaxToneChange = 0.25;
-// A fibre's span in the pose: its anchors' distance plus its tendons' paths beyond them (empty transforms: at rest).
-double fibreSpanLength(const MassSpringSystem& system, const FibreSpan& span, const BoneTransforms& transforms);
+// A fibre's span in the pose: from its first anchor through its muscle's belly path (tone.belly_paths; none: straight)
+// to its last anchor, plus its tendons' paths beyond them (empty transforms: at rest).
+double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, const FibreSpan& span,
+                       const BoneTransforms& transforms);
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms);
 
 // State at rest: positions = rest positions, zero velocity.

@@ -42,6 +42,8 @@ struct MuscleDescription {
   std::vector<std::string> tags;                         // e.g. thigh13, hip
   // `origin_path` / `insertion_path` keys: the tendons' paths (Muscle::origin_path), each point in its link's frame.
   std::vector<SitePoint> origin_path, insertion_path;
+  // `belly_path` key (optional): the via points the belly covers, from origin to insertion (Muscle::belly_path).
+  std::vector<SitePoint> belly_path;
   // `reference_muscles` key: the reference model's musculotendons this muscle is compared with (empty: none).
   std::vector<std::string> reference_muscles;
   // `particles_per_fibre` key: this muscle's own resolution (Muscle::particles_per_fibre); 0 (no key): the model's.
