@@ -138,7 +138,9 @@ def record(args, stamps, screenshot_stamp, bag_rate_hz, launch):
     rospy.Subscriber("/muscle_deformation/stats", DeformationStats, on_stats, queue_size=1000)
     time.sleep(2)  # subscriptions connect
     rospy.ServiceProxy("/player/pause_playback", SetBool)(False)
-    shot_taken = False
+    # One attempt: each pauses the bag for seconds, so retrying while rviz is gone (it can die at start-up under software
+    # GL) held the bag nearly still until the timeout and left most poses unplayed.
+    shot_taken = shot_attempted = False
     start = time.time()
     last_change, last_count = time.time(), 0
     while time.time() - start < args.timeout:
@@ -148,7 +150,8 @@ def record(args, stamps, screenshot_stamp, bag_rate_hz, launch):
             break
         if len(frames) != last_count:
             last_count, last_change = len(frames), time.time()
-        if not shot_taken and frames and frames[-1].header.stamp.to_sec() >= screenshot_stamp:
+        if not shot_attempted and frames and frames[-1].header.stamp.to_sec() >= screenshot_stamp:
+            shot_attempted = True
             shot_taken = take_screenshot(args.out, SetBool)
         done = frames and frames[-1].poses_received >= len(stamps)
         if done and time.time() - last_change > 5:
