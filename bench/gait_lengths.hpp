@@ -39,6 +39,12 @@ namespace bench {
 // (the span itself does not follow gait2392) from a miss inside the model (the span does, the belly does not).
 struct MuscleLengths {
   std::vector<std::vector<double>> belly, whole, spanned;  // [muscle][frame]
+  // What the tone sets (`toned`): the same mean with each fibre's change held to the tone's limit (kMaxToneChange), the
+  // rest lengths the belly's springs are given along the fibres; where it falls short of `spanned`, the limit binds.
+  std::vector<std::vector<double>> toned;  // [muscle][frame]
+  // Per muscle: fibre-frames whose tone met its limit, of those counted; the fibres' mean rest belly length (m).
+  std::vector<long> tone_limited, tone_counted;
+  std::vector<double> rest_belly_m;
   // Whether the fibres kept their line (an arc length measures a muscle's length only then), the worst frame.
   WorstFolding folding;
 };
@@ -54,18 +60,35 @@ inline void addLengthsOf(const muscle_deformation::DeformationPipeline& pipeline
     lengths.belly.resize(static_cast<std::size_t>(muscles));
     lengths.whole.resize(static_cast<std::size_t>(muscles));
     lengths.spanned.resize(static_cast<std::size_t>(muscles));
+    lengths.toned.resize(static_cast<std::size_t>(muscles));
+    lengths.tone_limited.assign(static_cast<std::size_t>(muscles), 0);
+    lengths.tone_counted.assign(static_cast<std::size_t>(muscles), 0);
+    lengths.rest_belly_m.assign(static_cast<std::size_t>(muscles), std::nan(""));
   }
   if (!system.belly_tone.empty()) {
-    std::vector<double> sum(static_cast<std::size_t>(muscles), 0.0);
+    const BellyTone& tone = system.belly_tone;
+    std::vector<double> sum(static_cast<std::size_t>(muscles), 0.0), toned(sum.size(), 0.0), rest(sum.size(), 0.0);
     std::vector<int> count(static_cast<std::size_t>(muscles), 0);
-    for (const FibreSpan& span : system.belly_tone.fibres) {
-      if (span.first_anchor < 0) continue;
+    for (const FibreSpan& span : tone.fibres) {
+      if (span.first_anchor < 0 || !(span.belly_length_m > 0)) continue;
       const auto m = static_cast<std::size_t>(span.muscle);
-      sum[m] += span.belly_length_m + fibreSpanLength(system, system.belly_tone, span, pipeline.boneTransforms()) - span.rest_span_m;
+      const double change = fibreSpanLength(system, tone, span, pipeline.boneTransforms()) - span.rest_span_m;
+      sum[m] += span.belly_length_m + change;
+      // As updateBellyTone sets it.
+      const double asked = tone.gain * change / span.belly_length_m;
+      const double held = std::clamp(asked, -kMaxToneChange, kMaxToneChange);
+      toned[m] += span.belly_length_m * (1.0 + held);
+      rest[m] += span.belly_length_m;
+      lengths.tone_limited[m] += held != asked;
+      ++lengths.tone_counted[m];
       ++count[m];
     }
-    for (std::size_t m = 0; m < sum.size(); ++m)
-      if (count[m] > 0) lengths.spanned[m].push_back(sum[m] / count[m]);
+    for (std::size_t m = 0; m < sum.size(); ++m) {
+      if (count[m] == 0) continue;
+      lengths.spanned[m].push_back(sum[m] / count[m]);
+      lengths.toned[m].push_back(toned[m] / count[m]);
+      lengths.rest_belly_m[m] = rest[m] / count[m];
+    }
   }
   // Tendon length beyond each anchor (via points to the site), by anchor particle.
   std::vector<double> beyond(static_cast<std::size_t>(system.particleCount()), 0.0);

@@ -107,9 +107,10 @@ int main(int argc, char** argv) {
                                          std::pair<std::string, const bench::MuscleLengths*>{"converged_", &converged_lengths}}) {
       for (const auto& [part, series] : {std::pair<std::string, const std::vector<double>*>{"", &lengths->belly[m]},
                                           std::pair<std::string, const std::vector<double>*>{"with_tendon_", &lengths->whole[m]},
-                                          std::pair<std::string, const std::vector<double>*>{"spanned_", &lengths->spanned[m]}}) {
-        // The span is the bones' and paths' alone: the same in both streams, recorded once.
-        if (part == "spanned_" && (!label.empty() || series->size() != frames)) continue;
+                                          std::pair<std::string, const std::vector<double>*>{"spanned_", &lengths->spanned[m]},
+                                          std::pair<std::string, const std::vector<double>*>{"toned_", &lengths->toned[m]}}) {
+        // The span and what the tone sets are the bones' and paths' alone: the same in both streams, recorded once.
+        if ((part == "spanned_" || part == "toned_") && (!label.empty() || series->size() != frames)) continue;
         const std::string prefix = label + part;
         const Eigen::VectorXd product_slopes = slopes(gait_angles, *series);
         records.add(prefix + "r", bench::correlation(*series, reference_length));
@@ -118,6 +119,13 @@ int main(int argc, char** argv) {
         for (std::size_t j = 0; j < kJoints.size(); ++j)
           records.add(prefix + "mm_per_rad_product_" + kJoints[j], 1e3 * product_slopes[static_cast<Eigen::Index>(j)]);
       }
+    }
+    if (stream_lengths.tone_counted[m] > 0) {
+      // The strain the reference's excursion asks of the belly as segmented, and how often the tone's limit held it.
+      records.add("rest_belly_length_mm", 1e3 * stream_lengths.rest_belly_m[m]);
+      records.add("reference_excursion_strain", bench::range(reference_length) / stream_lengths.rest_belly_m[m]);
+      records.add("tone_limited_share", static_cast<double>(stream_lengths.tone_limited[m]) /
+                                            static_cast<double>(stream_lengths.tone_counted[m]));
     }
     records.add("mean_length_mm_product", 1e3 * std::accumulate(stream_lengths.belly[m].begin(), stream_lengths.belly[m].end(), 0.0) / static_cast<double>(frames));
     records.add("mean_length_mm_reference", 1e3 * std::accumulate(reference_length.begin(), reference_length.end(), 0.0) / static_cast<double>(frames));
@@ -131,10 +139,13 @@ int main(int argc, char** argv) {
                 1e3 * reference_slopes[3], 1e3 * s[0], 1e3 * reference_slopes[0]);
     if (stream_lengths.spanned[m].size() == frames) {
       const Eigen::VectorXd span_slopes = slopes(gait_angles, stream_lengths.spanned[m]);
-      std::printf("  %-28s its attachment span: r %.3f, excursion x%.2f, knee %.0f mm/rad, hip flexion %.0f\n", "",
+      std::printf("  %-28s its attachment span: r %.3f, excursion x%.2f, knee %.0f mm/rad, hip flexion %.0f; the tone "
+                  "sets x%.2f (limit held %.0f %% of fibre-frames; rest belly %.0f mm, gait2392's excursion %.0f %% of it)\n", "",
                   bench::correlation(stream_lengths.spanned[m], reference_length),
                   bench::range(stream_lengths.spanned[m]) / bench::range(reference_length), 1e3 * span_slopes[3],
-                  1e3 * span_slopes[0]);
+                  1e3 * span_slopes[0], bench::range(stream_lengths.toned[m]) / bench::range(reference_length),
+                  100.0 * static_cast<double>(stream_lengths.tone_limited[m]) / static_cast<double>(stream_lengths.tone_counted[m]),
+                  1e3 * stream_lengths.rest_belly_m[m], 100.0 * bench::range(reference_length) / stream_lengths.rest_belly_m[m]);
     }
     std::fflush(stdout);
   }

@@ -167,8 +167,15 @@ class LengthTarget(unittest.TestCase):
         spanned = length_row("a", 0.95, 40.0, 45.0)
         spanned.update(spanned_r=0.987, spanned_range_ratio=1.04)
         text = "\n".join(bench_report.lengths_section([spanned, length_row("b", 0.95, 40.0, 45.0)]))
-        self.assertIn("| 0.95 | 0.99 (x1.04) | 40.0 / 45.0", text)
-        self.assertIn("| 0.95 | - | 40.0 / 45.0", text)
+        self.assertIn("| 0.95 | 0.99 (x1.04) | - | 40.0 / 45.0", text)
+        self.assertIn("| 0.95 | - | - | 40.0 / 45.0", text)
+
+    def test_what_the_tone_sets_is_the_json_s_with_its_limit_and_the_strain_asked(self):
+        toned = length_row("a", 0.95, 40.0, 45.0)
+        toned.update(spanned_r=0.999, spanned_range_ratio=0.98, toned_range_ratio=0.744, tone_limited_share=0.372,
+                     reference_excursion_strain=0.567, rest_belly_length_mm=47.9)
+        text = "\n".join(bench_report.lengths_section([toned]))
+        self.assertIn("| 1.00 (x0.98) | x0.74 (37 %; 57 % of 48 mm) | 40.0 / 45.0", text)
 
     def test_the_fibres_folding_over_the_gait_is_stated_both_ways_and_is_no_muscle(self):
         folding = {"fibre_folding": "worst frame", "folded_fibres_max": 12.0, "most_folded_muscle": "gracilis",

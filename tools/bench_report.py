@@ -376,16 +376,24 @@ def lengths_section(rows):
              "between its attachments as the bones carry them (through the muscle's belly path, tendon paths beyond), "
              "r and excursion ratio against gait2392: where the span follows gait2392 and the belly does not, the "
              "miss is inside the model; where the span does not, it is in the attachments. "
+             "*tone sets*: the rest lengths the tone gives the belly, the span's change held to +-25 % of each "
+             "fibre's rest belly length (excursion ratio; the share of fibre-frames the limit held; gait2392's "
+             "excursion as a strain of the rest belly): where it falls short of the span, the belly as segmented is "
+             "too short to take the reference's excursion within the limit. "
              "Raw numbers: `out/bench/lengths.json`.", "",
              "| muscle | gait2392 | r stream / converged | r with tendon | span r (excursion x) | "
-             "excursion mm product / reference (x) | "
+             "tone sets x (limit held; strain asked) | excursion mm product / reference (x) | "
              "knee mm/rad product / reference | hip flexion mm/rad product / reference | misses (stream) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in compared:
         misses = length_target_misses(r)
         span = (f"{r['spanned_r']:.2f} (x{r['spanned_range_ratio']:.2f})" if "spanned_r" in r else "-")
+        toned = (f"x{r['toned_range_ratio']:.2f} ({100 * r['tone_limited_share']:.0f} %; "
+                 f"{100 * r['reference_excursion_strain']:.0f} % of {r['rest_belly_length_mm']:.0f} mm)"
+                 if "toned_range_ratio" in r and "tone_limited_share" in r else "-")
         lines.append(f"| {r['muscle']} | {r['reference']} | {r['r']:.2f} / {r['converged_r']:.2f} | "
-                     f"{r['with_tendon_r']:.2f} | {span} | {r['range_mm_product']:.1f} / {r['range_mm_reference']:.1f} "
+                     f"{r['with_tendon_r']:.2f} | {span} | {toned} | "
+                     f"{r['range_mm_product']:.1f} / {r['range_mm_reference']:.1f} "
                      f"(x{r['range_ratio']:.2f}) | {r['mm_per_rad_product_knee_angle_r']:.0f} / "
                      f"{r['mm_per_rad_reference_knee_angle_r']:.0f} | {r['mm_per_rad_product_hip_flexion_r']:.0f} / "
                      f"{r['mm_per_rad_reference_hip_flexion_r']:.0f} | {', '.join(misses) if misses else 'meets'} |")
