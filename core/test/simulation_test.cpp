@@ -1,6 +1,7 @@
 // The whole core pipeline: model, collision and solver behind MuscleSimulation.
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
 #include "muscle_deformation/core/pipeline/settings_table.hpp"
+#include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
 #include "muscle_deformation/support/synthetic_scene.hpp"
 
@@ -9,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <vector>
 
 using namespace muscle_deformation;
@@ -178,11 +180,39 @@ TEST(Simulation, AWarmFrameThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   EXPECT_TRUE(guarded.jump.finite);
 }
 
+TEST(Simulation, TheBundledGaitsColdFirstFrameKeepsEveryMusclesModelVolumeWithinThreePercent) {
+  // All 26 bundled muscles at the node's settings, the gait's first pose offered to a new stream: a cold start of the
+  // node's cold_start_sweeps. Its model volume (the skinned surface before the projection that would restore it) is
+  // what issue 26 asks to stay within 3 % in every frame; the belly's tone shortens the iliacus at this pose, and 10
+  // sweeps left it 3.22 % off.
+  const BundledScene& bundled = [] () -> const BundledScene& {
+    static const BundledScene all = loadBundledScene(MD_PACKAGE_DIR, {});
+    return all;
+  }();
+  const CoreSettings node = nodeDefaultSettings();
+  PipelineSettings settings = node.pipeline;
+  settings.skin_surfaces = settings.measure_fidelity = true;
+  settings.surface_volume.keep_volume = false;  // the model's own volume, not the projection's
+  StreamSession session(bundled.scene.muscle_descriptions, bundled.scene.muscles, bundled.scene.bones, settings,
+                        node.stream);
+  const StreamStep step =
+      session.offer(bundled.gait.times_s.front(), boneTransformsOf(session.bones(), gaitPose(bundled, 0)), {true, true});
+  ASSERT_NE(step.frame, nullptr);
+  ASSERT_TRUE(step.frame->has_metrics);
+  EXPECT_FALSE(step.frame->stats.warm_started);
+  EXPECT_GE(step.frame->stats.solver.iterations, node.stream.stopping.cold_start_iterations);
+  ASSERT_EQ(step.frame->metrics.muscles.size(), bundled.scene.muscles.size());
+  for (std::size_t m = 0; m < step.frame->metrics.muscles.size(); ++m)
+    EXPECT_LE(std::abs(step.frame->metrics.muscles[m].volume_error_pct), 3.0) << bundled.scene.muscles[m].name;
+}
+
 TEST(Simulation, AColdStartThatLeavesAParticleCentreInABoneGetsItsDeepContactSweepsToo) {
   // The bundled thigh muscles at the node's settings (with the volume term, which needs the pipeline's skinning),
   // started cold under a time budget at an extreme pose (hip flexion 110 deg, knee flexion 130 deg): the cold start's
   // fixed sweeps leave a particle centre in the femur (the tension pulls the belly round the bone faster than they
   // resolve the contact), and the frame then takes the deep-contact sweeps a warm frame would, within their cap.
+  // 10 cold sweeps: they leave it there (the node's 15 end 0.39 mm deep, inside the median radius of 1.5 mm, and need
+  // no deep-contact sweep).
   const ThighAtNodeSettings scene = thighAtNodeSettings();
   const Pose extreme =
       poseFor(scene.thigh, {{"hip_flexion_r", 1.9198621771937625}, {"knee_angle_r", -2.2689280275926285}});
@@ -190,6 +220,7 @@ TEST(Simulation, AColdStartThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
   settings.skin_surfaces = settings.measure_fidelity = false;
   const auto run = [&](int deep_contact_sweeps) {
     FrameStopping chosen = scene.oneSweep();
+    chosen.cold_start_iterations = 10;
     chosen.deep_contact_sweeps = deep_contact_sweeps;
     DeformationPipeline pipeline(scene.thigh.scene.muscle_descriptions, scene.thigh.scene.muscles,
                                  scene.thigh.scene.bones, settings);
@@ -197,7 +228,7 @@ TEST(Simulation, AColdStartThatLeavesAParticleCentreInABoneGetsItsDeepContactSwe
         pipeline.solve(boneTransformsOf(pipeline.bones(), extreme), StartMode::cold, chosen, false, false).stats;
     return std::make_pair(stats, pipeline.system().medianCollisionRadius());
   };
-  const int cold_sweeps = scene.node.stream.stopping.cold_start_iterations;
+  const int cold_sweeps = 10;
   const auto [fixed_only, median_radius_m] = run(0);
   const FrameStats guarded = run(3).first;
   ASSERT_GT(fixed_only.collision.max_penetration_muscle_bone_m, median_radius_m);
