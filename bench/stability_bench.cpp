@@ -247,6 +247,58 @@ struct MotionFigures {
   double after_hold_strain_p99 = std::nan("");
 };
 
+// Which springs make a motion's strain 99th percentile: per frame, the springs at or above that frame's p99 (as
+// measureSprings measures strain: against the segmented length, |l - l0| / l0), counted by their muscle and by kind
+// (a tendon: one end a tendon anchor; across the fibres: a belly spring at more than 45 degrees to them, one of the
+// springs the belly's transverse_stiffness_ratio makes soft), summed over the motion's frames.
+struct StrainOwners {
+  std::vector<double> by_muscle;  // springs counted, per muscle
+  double tendons = 0, across = 0, total = 0;
+
+  void add(const MassSpringSystem& system, const Eigen::Matrix3Xd& position, double p99) {
+    if (!(p99 > 0)) return;
+    if (by_muscle.empty()) by_muscle.assign(static_cast<std::size_t>(system.muscleCount()), 0.0);
+    const SpringSet& springs = system.springs;
+    const bool with_prestretch = springs.prestretch_factor.size() == static_cast<Eigen::Index>(springs.size());
+    for (std::size_t s = 0; s < springs.size(); ++s) {
+      const auto e = static_cast<Eigen::Index>(s);
+      const double rest = with_prestretch ? springs.rest_length[e] / springs.prestretch_factor[e] : springs.rest_length[e];
+      const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
+      if (std::abs(length - rest) / rest < p99) continue;
+      const auto a = static_cast<std::size_t>(springs.first[s]), b = static_cast<std::size_t>(springs.second[s]);
+      by_muscle[static_cast<std::size_t>(system.muscle_of[a])] += 1;
+      if (system.fibre_of[a] == kTendonAnchor || system.fibre_of[b] == kTendonAnchor) tendons += 1;
+      const BellyTone& tone = system.belly_tone;
+      if (tone.alignment_squared.size() == static_cast<Eigen::Index>(springs.size()) && tone.first_fibre[s] >= 0 &&
+          tone.second_fibre[s] >= 0 && tone.alignment_squared[e] < 0.5)
+        across += 1;
+      total += 1;
+    }
+  }
+
+  // "rectus_femoris 31 %, ...; tendons 1 %, across the fibres 90 %": the muscles holding 80 % of them, at most five.
+  std::string summary(const MassSpringSystem& system) const {
+    if (!(total > 0)) return "";
+    std::vector<std::size_t> order(by_muscle.size());
+    for (std::size_t m = 0; m < order.size(); ++m) order[m] = m;
+    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return by_muscle[a] > by_muscle[b]; });
+    std::string out;
+    double covered = 0;
+    for (std::size_t k = 0; k < order.size() && k < 5 && covered < 0.8 * total; ++k) {
+      const double share = by_muscle[order[k]] / total;
+      covered += by_muscle[order[k]];
+      char part[96];
+      std::snprintf(part, sizeof part, "%s%s %.0f %%", out.empty() ? "" : ", ", system.muscle_name[order[k]].c_str(),
+                    100.0 * share);
+      out += part;
+    }
+    char tail[80];
+    std::snprintf(tail, sizeof tail, "; tendons %.0f %%, across the fibres %.0f %%", 100.0 * tendons / total,
+                  100.0 * across / total);
+    return out + tail;
+  }
+};
+
 // Issue 29's window: within this many received poses of the hold, the model's volume and residual must be back.
 constexpr int kHeldPosesJudged = 30;
 
@@ -331,6 +383,7 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
     figures.catch_up_sweeps += frame->stats.catch_up_sweeps;
   };
   std::vector<double> strain_p99, frame_ms, residuals;
+  StrainOwners owners;
   for (std::size_t k = 0; k < motion.size(); ++k) {
     const bool last = k + 1 == motion.size();
     const FrameResult* frame = stream.offer(motion[k], last ? model_volume : FrameWants{});
@@ -338,6 +391,7 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
     if (last) takeAfterHold(frame, 0);
     if (frame && k > 0) {
       strain_p99.push_back(frame->stats.solver.strain_p99);
+      owners.add(simulation.system(), simulation.state().position, frame->stats.solver.strain_p99);
       frame_ms.push_back(frame->stats.solver.total_ms);
       if (std::isfinite(frame->stats.solver.residual)) residuals.push_back(frame->stats.solver.residual);
     }
@@ -378,6 +432,7 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   records.add("catch_up_sweeps", figures.catch_up_sweeps);
   records.add("strain_p99_median", figures.strain_p99_median);
   records.add("strain_p99_max", figures.strain_p99_max);
+  if (const std::string top = owners.summary(simulation.system()); !top.empty()) records.add("strain_p99_owners", top);
   records.add("max_strain", figures.max_strain);
   records.addMeasured("converged_strain_p99_median", converged.p99_median);
   records.addMeasured("converged_strain_p99_max", converged.p99_max);
@@ -402,6 +457,8 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
               "%.3f (the held pose converged: %.3f)\n",
               report.elapsedSeconds(), name.c_str(), figures.after_hold_poses, kHeldPosesJudged,
               figures.after_hold_volume_error_max_pct, figures.after_hold_strain_p99, converged.last_p99);
+  std::printf("[%6.1f s] %-22s springs at or above each frame's strain p99: %s\n", report.elapsedSeconds(), name.c_str(),
+              owners.summary(simulation.system()).c_str());
   std::printf("[%6.1f s] %-22s frame %.1f ms median, %d catch-up sweeps; converged frame by frame (%d of %d met the "
               "criterion): strain p99 median %.3f max %.3f\n",
               report.elapsedSeconds(), name.c_str(), figures.frame_ms_median, figures.catch_up_sweeps,

@@ -253,6 +253,20 @@ class StabilityMotions(unittest.TestCase):
         self.assertIn("beyond what more sweeps can give: kick (0.450 converged against 0.500 streamed).", text)
         self.assertNotIn("deep (0.390", text)
 
+    def test_whose_springs_make_the_strain_is_the_json_s_and_left_out_where_not_measured(self):
+        gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,
+                "strain_p99_max": 0.4, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1, "deepest_particle": "",
+                "particle_volume_error_max_pct": 2.0, "settled_converged": 1.0,
+                "strain_p99_owners": "semitendinosus 21 %, gracilis 14 %; tendons 1 %, across the fibres 68 %"}
+        kick = dict(gait, case="kick")
+        del kick["strain_p99_owners"]
+        text = "\n".join(accuracy_report.stability_section([gait, kick]))
+        self.assertIn("summed over the motion; *across the fibres*: belly springs at more than 45 degrees to them, the "
+                      "soft ones): gait_1x: semitendinosus 21 %, gracilis 14 %; tendons 1 %, across the fibres 68 %.", text)
+        self.assertNotIn("kick: ", text)
+        del gait["strain_p99_owners"]
+        self.assertNotIn("Whose springs", "\n".join(accuracy_report.stability_section([gait, kick])))
+
     def test_after_the_hold_the_jumps_volume_and_residual_and_every_motions_strain_are_judged(self):
         gait = {"case": "gait_1x", "description": "gait", "finite": 1.0, "restarts": 0.0, "strain_p99_median": 0.2,
                 "strain_p99_max": 0.4, "max_strain": 3.0, "max_particle_inside_bone_mm": 0.1, "deepest_particle": "",

@@ -175,6 +175,12 @@ def stability_section(rows):
                          f"{row['particle_volume_error_max_pct']:.1f} | {settled} | {_after_hold(row)} | "
                          f"{_folding(row)} |")
         lines += [""]
+        owned = [row for row in motions if row.get("strain_p99_owners")]
+        if owned:
+            lines += ["Whose springs make each motion's strain p99 (per frame, the springs at or above that frame's "
+                      "99th percentile, by muscle and kind, summed over the motion; *across the fibres*: belly springs "
+                      "at more than 45 degrees to them, the soft ones): " + "; ".join(
+                          f"{row['case']}: {row['strain_p99_owners']}" for row in owned) + ".", ""]
         lines += _after_hold_lines(motions, gait)
         if gait:
             beyond = [row for row in motions if row.get("converged_strain_p99_median") is not None
