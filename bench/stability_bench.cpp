@@ -250,10 +250,11 @@ struct MotionFigures {
 // Which springs make a motion's strain 99th percentile: per frame, the springs at or above that frame's p99 (as
 // measureSprings measures strain: against the segmented length, |l - l0| / l0), counted by their muscle and by kind
 // (a tendon: one end a tendon anchor; across the fibres: a belly spring at more than 45 degrees to them, one of the
-// springs the belly's transverse_stiffness_ratio makes soft), summed over the motion's frames.
+// springs the belly's transverse_stiffness_ratio makes soft) and by sign (stretched or compressed), summed over the
+// motion's frames.
 struct StrainOwners {
   std::vector<double> by_muscle;  // springs counted, per muscle
-  double tendons = 0, across = 0, total = 0;
+  double tendons = 0, across = 0, stretched = 0, total = 0;
 
   void add(const MassSpringSystem& system, const Eigen::Matrix3Xd& position, double p99) {
     if (!(p99 > 0)) return;
@@ -265,6 +266,7 @@ struct StrainOwners {
       const double rest = with_prestretch ? springs.rest_length[e] / springs.prestretch_factor[e] : springs.rest_length[e];
       const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
       if (std::abs(length - rest) / rest < p99) continue;
+      if (length > rest) stretched += 1;
       const auto a = static_cast<std::size_t>(springs.first[s]), b = static_cast<std::size_t>(springs.second[s]);
       by_muscle[static_cast<std::size_t>(system.muscle_of[a])] += 1;
       if (system.fibre_of[a] == kTendonAnchor || system.fibre_of[b] == kTendonAnchor) tendons += 1;
@@ -276,7 +278,8 @@ struct StrainOwners {
     }
   }
 
-  // "rectus_femoris 31 %, ...; tendons 1 %, across the fibres 90 %": the muscles holding 80 % of them, at most five.
+  // "rectus_femoris 31 %, ...; tendons 1 %, across the fibres 60 %, stretched 70 %": the muscles holding 80 % of them,
+  // at most five; *stretched*: longer than their rest length (the others compressed).
   std::string summary(const MassSpringSystem& system) const {
     if (!(total > 0)) return "";
     std::vector<std::size_t> order(by_muscle.size());
@@ -292,9 +295,9 @@ struct StrainOwners {
                     100.0 * share);
       out += part;
     }
-    char tail[80];
-    std::snprintf(tail, sizeof tail, "; tendons %.0f %%, across the fibres %.0f %%", 100.0 * tendons / total,
-                  100.0 * across / total);
+    char tail[112];
+    std::snprintf(tail, sizeof tail, "; tendons %.0f %%, across the fibres %.0f %%, stretched %.0f %%",
+                  100.0 * tendons / total, 100.0 * across / total, 100.0 * stretched / total);
     return out + tail;
   }
 };

@@ -262,7 +262,8 @@ class StabilityMotions(unittest.TestCase):
         del kick["strain_p99_owners"]
         text = "\n".join(accuracy_report.stability_section([gait, kick]))
         self.assertIn("summed over the motion; *across the fibres*: belly springs at more than 45 degrees to them, the "
-                      "soft ones): gait_1x: semitendinosus 21 %, gracilis 14 %; tendons 1 %, across the fibres 68 %.", text)
+                      "soft ones; *stretched*: longer than their rest length): gait_1x: semitendinosus 21 %, gracilis "
+                      "14 %; tendons 1 %, across the fibres 68 %.", text)
         self.assertNotIn("kick: ", text)
         del gait["strain_p99_owners"]
         self.assertNotIn("Whose springs", "\n".join(accuracy_report.stability_section([gait, kick])))

@@ -179,7 +179,7 @@ def stability_section(rows):
         if owned:
             lines += ["Whose springs make each motion's strain p99 (per frame, the springs at or above that frame's "
                       "99th percentile, by muscle and kind, summed over the motion; *across the fibres*: belly springs "
-                      "at more than 45 degrees to them, the soft ones): " + "; ".join(
+                      "at more than 45 degrees to them, the soft ones; *stretched*: longer than their rest length): " + "; ".join(
                           f"{row['case']}: {row['strain_p99_owners']}" for row in owned) + ".", ""]
         lines += _after_hold_lines(motions, gait)
         if gait:
