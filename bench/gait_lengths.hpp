@@ -74,12 +74,10 @@ inline void addLengthsOf(const muscle_deformation::DeformationPipeline& pipeline
       const auto m = static_cast<std::size_t>(span.muscle);
       const double change = fibreSpanLength(system, tone, span, pipeline.boneTransforms()) - span.rest_span_m;
       sum[m] += span.belly_length_m + change;
-      // As updateBellyTone sets it.
-      const double asked = tone.gain * change / span.belly_length_m;
-      const double held = std::clamp(asked, -kMaxToneChange, kMaxToneChange);
-      toned[m] += span.belly_length_m * (1.0 + held);
+      bool limited = false;
+      toned[m] += span.belly_length_m * fibreToneFactor(tone, span, change, &limited);
       rest[m] += span.belly_length_m;
-      lengths.tone_limited[m] += held != asked;
+      lengths.tone_limited[m] += limited;
       ++lengths.tone_counted[m];
       ++count[m];
     }

@@ -16,6 +16,7 @@
 #include "muscle_deformation/core/pipeline/stream_session.hpp"
 #include "muscle_deformation/core/scene/scene.hpp"
 #include "muscle_deformation/core/solvers/local_global_solver.hpp"
+#include "muscle_deformation/core/solvers/solve_control.hpp"
 #include "muscle_deformation/core/solvers/verlet_solver.hpp"
 #include "muscle_deformation/core/surfaces/deformation_metrics.hpp"
 #include "muscle_deformation/support/bundled_scene.hpp"
@@ -260,19 +261,18 @@ struct StrainOwners {
     if (!(p99 > 0)) return;
     if (by_muscle.empty()) by_muscle.assign(static_cast<std::size_t>(system.muscleCount()), 0.0);
     const SpringSet& springs = system.springs;
-    const bool with_prestretch = springs.prestretch_factor.size() == static_cast<Eigen::Index>(springs.size());
+    const BellyTone& tone = system.belly_tone;
+    const bool with_alignment = tone.alignment_squared.size() == static_cast<Eigen::Index>(springs.size());
     for (std::size_t s = 0; s < springs.size(); ++s) {
       const auto e = static_cast<Eigen::Index>(s);
-      const double rest = with_prestretch ? springs.rest_length[e] / springs.prestretch_factor[e] : springs.rest_length[e];
+      const double rest = segmentedLength(springs, e);
       const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
       if (std::abs(length - rest) / rest < p99) continue;
       if (length > rest) stretched += 1;
       const auto a = static_cast<std::size_t>(springs.first[s]), b = static_cast<std::size_t>(springs.second[s]);
       by_muscle[static_cast<std::size_t>(system.muscle_of[a])] += 1;
       if (system.fibre_of[a] == kTendonAnchor || system.fibre_of[b] == kTendonAnchor) tendons += 1;
-      const BellyTone& tone = system.belly_tone;
-      if (tone.alignment_squared.size() == static_cast<Eigen::Index>(springs.size()) && tone.first_fibre[s] >= 0 &&
-          tone.second_fibre[s] >= 0 && tone.alignment_squared[e] < 0.5)
+      if (with_alignment && tone.first_fibre[s] >= 0 && tone.second_fibre[s] >= 0 && tone.alignment_squared[e] < 0.5)
         across += 1;
       total += 1;
     }
@@ -435,7 +435,8 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
   records.add("catch_up_sweeps", figures.catch_up_sweeps);
   records.add("strain_p99_median", figures.strain_p99_median);
   records.add("strain_p99_max", figures.strain_p99_max);
-  if (const std::string top = owners.summary(simulation.system()); !top.empty()) records.add("strain_p99_owners", top);
+  const std::string strain_owners = owners.summary(simulation.system());
+  if (!strain_owners.empty()) records.add("strain_p99_owners", strain_owners);
   records.add("max_strain", figures.max_strain);
   records.addMeasured("converged_strain_p99_median", converged.p99_median);
   records.addMeasured("converged_strain_p99_max", converged.p99_max);
@@ -461,7 +462,7 @@ MotionFigures motionCase(Report& report, bench::JsonRecords& records, const Bund
               report.elapsedSeconds(), name.c_str(), figures.after_hold_poses, kHeldPosesJudged,
               figures.after_hold_volume_error_max_pct, figures.after_hold_strain_p99, converged.last_p99);
   std::printf("[%6.1f s] %-22s springs at or above each frame's strain p99: %s\n", report.elapsedSeconds(), name.c_str(),
-              owners.summary(simulation.system()).c_str());
+              strain_owners.c_str());
   std::printf("[%6.1f s] %-22s frame %.1f ms median, %d catch-up sweeps; converged frame by frame (%d of %d met the "
               "criterion): strain p99 median %.3f max %.3f\n",
               report.elapsedSeconds(), name.c_str(), figures.frame_ms_median, figures.catch_up_sweeps,

@@ -66,6 +66,7 @@ TEST(SettingsTable, BadValuesAreDescribed) {
             "'forever' is not one of: iterations, displacement, time_budget, force_residual");
   EXPECT_EQ(md::checkSetting(*md::findSetting("collisions"), md::SettingValue(1)), "has the wrong type");
   EXPECT_EQ(md::checkSetting(*md::findSetting("dt_s"), md::SettingValue(true)), "must be a number");
+  EXPECT_EQ(md::checkSetting(*md::findSetting("cold_start_sweeps"), md::SettingValue(0)), "is 0, must be in [1, 1000]");
   EXPECT_EQ(md::findSetting("no_such_setting"), nullptr);
 }
 

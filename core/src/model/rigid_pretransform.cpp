@@ -147,15 +147,23 @@ double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, co
   return length;
 }
 
+double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span_change_m, bool* limited) {
+  if (limited) *limited = false;
+  if (!(span.belly_length_m > 0)) return 1.0;
+  const double asked = tone.gain * span_change_m / span.belly_length_m;
+  const double held = std::clamp(asked, -kMaxToneChange, kMaxToneChange);
+  if (limited) *limited = held != asked;
+  return 1.0 + held;
+}
+
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms) {
   BellyTone& tone = system.belly_tone;
   if (tone.empty()) return false;
   std::vector<double> factor(tone.fibres.size(), 1.0);
   for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
     const FibreSpan& span = tone.fibres[f];
-    if (span.first_anchor < 0 || !(span.belly_length_m > 0)) continue;
-    const double change = tone.gain * (fibreSpanLength(system, tone, span, transforms) - span.rest_span_m) / span.belly_length_m;
-    factor[f] = 1.0 + std::clamp(change, -kMaxToneChange, kMaxToneChange);
+    if (span.first_anchor < 0) continue;
+    factor[f] = fibreToneFactor(tone, span, fibreSpanLength(system, tone, span, transforms) - span.rest_span_m);
   }
   bool changed = false;
   for (std::size_t s = 0; s < tone.first_fibre.size(); ++s) {

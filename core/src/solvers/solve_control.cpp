@@ -78,7 +78,6 @@ SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& p
   // Every frame measures all its springs (a third of a million in the bundled scene, a fifth of a sweep's time when
   // serial): the threads share fixed chunks, whose sums are added in chunk order, so the figures do not depend on the
   // thread count.
-  const bool with_prestretch = springs.prestretch_factor.size() == static_cast<Eigen::Index>(springs.size());
   constexpr std::size_t kChunk = 4096;
   const std::size_t chunks = (springs.size() + kChunk - 1) / kChunk;
   std::vector<double> deviation(chunks, 0.0), rest_sum(chunks, 0.0), strain_sum(chunks, 0.0), max_strain(chunks, 0.0);
@@ -97,7 +96,7 @@ SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& p
       for (std::size_t s = chunk * kChunk; s < end; ++s) {
         const auto e = static_cast<Eigen::Index>(s);
         // Against the segmented shape: a pre-tensioned belly's springs rest shorter than they are at rest.
-        const double rest = with_prestretch ? springs.rest_length[e] / springs.prestretch_factor[e] : springs.rest_length[e];
+        const double rest = segmentedLength(springs, e);
         const double length = (position.col(springs.second[s]) - position.col(springs.first[s])).norm();
         const double change = std::abs(length - rest);
         const double strain = change / rest;

@@ -49,6 +49,10 @@ constexpr double kMaxToneChange = 0.25;
 // to its last anchor, plus its tendons' paths beyond them (empty transforms: at rest).
 double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, const FibreSpan& span,
                        const BoneTransforms& transforms);
+// The factor the tone gives one fibre's belly for its span's change (m, pose against rest): 1 + gain x change / belly
+// length, held to [1 - kMaxToneChange, 1 + kMaxToneChange]; `limited` (optional) says whether the limit held it. 1 for
+// a fibre without a belly length.
+double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span_change_m, bool* limited = nullptr);
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms);
 
 // State at rest: positions = rest positions, zero velocity.

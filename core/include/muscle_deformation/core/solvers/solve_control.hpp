@@ -191,6 +191,11 @@ inline bool solveLimitReached(const SolveLimits& limits, double elapsed_ms, Solv
 struct SpringMetrics {
   double deviation_ratio = 0, mean_strain = 0, max_strain = 0, strain_p99 = 0;
 };
+// l0 above for spring e.
+inline double segmentedLength(const SpringSet& springs, Eigen::Index e) {
+  const bool with_prestretch = springs.prestretch_factor.size() == static_cast<Eigen::Index>(springs.size());
+  return with_prestretch ? springs.rest_length[e] / springs.prestretch_factor[e] : springs.rest_length[e];
+}
 // On `threads` threads; the figures are the same for any thread count.
 SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position, int threads = 1);
 // Fills the spring fields of `stats` (deviation ratio, mean and max strain, strain percentile) at `position`.
