@@ -1,5 +1,6 @@
 // Specifications of tendons: a fibre end away from its bone hangs from the muscle's attachment site through its via
 // points by a tendon much stiffer than the belly, so that the joint's motion reaches the belly.
+#include "muscle_deformation/core/base/median.hpp"
 #include "muscle_deformation/core/model/model_builder.hpp"
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 #include "muscle_deformation/core/pipeline/deformation_pipeline.hpp"
@@ -295,12 +296,17 @@ TEST(Tendon, ATonedBellyTakesItsPathsWholeChangeWhereAPassiveOneSharesItWithAnEl
   EXPECT_LT(passive, toned - 0.02);
 }
 
-TEST(Tendon, TheTonesRestLengthsFollowTheSpanAlongTheFibresOnlyAndComeBackAtRest) {
+// The hanging muscle's model with the belly's full tone, 10 particles per fibre.
+MassSpringSystem tonedHangingSystem() {
   const HangingScene scene = hangingMuscle();
   ModelSettings model;
   model.particles_per_fibre = 10;
   model.fibre_tone = 1.0;
-  MassSpringSystem system = buildMassSpringSystem(scene.muscles, scene.bones, model);
+  return buildMassSpringSystem(scene.muscles, scene.bones, model);
+}
+
+TEST(Tendon, TheTonesRestLengthsFollowTheSpanAlongTheFibresOnlyAndComeBackAtRest) {
+  MassSpringSystem system = tonedHangingSystem();
   const BellyTone& tone = system.belly_tone;
   ASSERT_FALSE(tone.empty());
   for (const FibreSpan& span : tone.fibres) {
@@ -430,4 +436,117 @@ TEST(Tendon, AToneOutsideZeroToTwoIsRefused) {
   }
   s.fibre_tone = 1.0;
   EXPECT_TRUE(validate(s).empty());
+}
+
+// The tissue carries a belly along its fibres as its tone changes (SimulationSettings::drag_follows_tone): each fibre of
+// the carried shape stretches along itself about its fixed particles by the tone's change, by no more, and by at most
+// kMaxToneStretchPerFrame a frame.
+TEST(Tendon, TheCarriedBellyStretchesAlongItsFibresAboutTheirFixedEndsByTheTonesChangeAndNoFurther) {
+  MassSpringSystem system = tonedHangingSystem();
+  const Eigen::VectorXd stiffness = springStiffnessSums(system);
+  const std::vector<double> rest_arcs = fibreArcLengths(system, system.rest_position);
+  ASSERT_EQ(rest_arcs.size(), system.belly_tone.fibres.size());
+
+  // The shape stretched from rest to the tone at `bones` (the bottom bone does not move, so the rest shape is where the
+  // bones carry it), and each free particle's expected move along z: f - 1 (held to the frame's limit) times its height
+  // above its fibre's last fixed particle, less by the ratio of its stiffness over the fibre's median where above it.
+  const auto check = [&](const BoneTransforms& bones, double expected_ratio_limit) {
+    updateBellyTone(system, bones);
+    const std::vector<double> factor = system.belly_tone.factor;
+    Eigen::Matrix3Xd carried = system.rest_position;
+    stretchWithTone(system, stiffness, {}, rest_arcs, carried);
+    std::size_t fibre = 0;
+    int moved_fully = 0, free_particles = 0;
+    forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+      const double f = std::min(factor[fibre++], 1.0 + expected_ratio_limit);
+      ASSERT_GT(f, 1.0);
+      ASSERT_TRUE(system.is_fixed[static_cast<std::size_t>(begin)]) << "the fibre starts on the bottom bone";
+      double z0 = system.rest_position(2, begin);  // its last fixed particle (within the attachment distance)
+      std::vector<double> free_stiffness;
+      for (Eigen::Index i = begin; i < begin + count; ++i) {
+        if (system.is_fixed[static_cast<std::size_t>(i)])
+          z0 = system.rest_position(2, i);
+        else
+          free_stiffness.push_back(stiffness[i]);
+      }
+      const double median = upperMedian(free_stiffness);
+      for (Eigen::Index i = begin; i < begin + count; ++i) {
+        const Eigen::Vector3d change = carried.col(i) - system.rest_position.col(i);
+        if (system.is_fixed[static_cast<std::size_t>(i)]) {
+          EXPECT_EQ(change.norm(), 0.0);
+          continue;
+        }
+        ++free_particles;
+        EXPECT_LT(change.head<2>().norm(), 1e-15) << "along the fibre only";
+        EXPECT_GT(change.z(), 0.0);
+        EXPECT_NEAR(change.z(), (f - 1.0) * (system.rest_position(2, i) - z0) * std::min(1.0, median / stiffness[i]),
+                    1e-15);
+        if (stiffness[i] <= median) ++moved_fully;
+      }
+    });
+    EXPECT_GT(2 * moved_fully, free_particles);
+    return carried;
+  };
+  // 0.5 % apart: the tone's change (about 0.7 %) is within a frame's limit; 10 % apart (about 14 %): held to it.
+  ASSERT_LT(kMaxToneStretchPerFrame, 0.14);
+  const Eigen::Matrix3Xd carried = check(apart(0.005), 1.0);
+  check(apart(0.10), kMaxToneStretchPerFrame);
+
+  // The tone unchanged since the frame before: nothing moves.
+  updateBellyTone(system, apart(0.005));
+  const std::vector<double> factor = system.belly_tone.factor;
+  Eigen::Matrix3Xd again = carried;
+  stretchWithTone(system, stiffness, factor, fibreArcLengths(system, carried), again);
+  EXPECT_EQ((again - carried).cwiseAbs().maxCoeff(), 0.0);
+
+  // What the carrying already stretched is not added again: a shape the bones carried to the toned length stays.
+  Eigen::Matrix3Xd stretched = system.rest_position;
+  std::size_t fibre = 0;
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+    const double f = factor[fibre++];
+    for (Eigen::Index i = begin + 1; i < begin + count; ++i)
+      stretched(2, i) = system.rest_position(2, begin) + f * (system.rest_position(2, i) - system.rest_position(2, begin));
+  });
+  Eigen::Matrix3Xd kept = stretched;
+  stretchWithTone(system, stiffness, {}, rest_arcs, kept);
+  EXPECT_LT((kept - stretched).cwiseAbs().maxCoeff(), 1e-15);
+
+  // Nor against the tone: carried past the toned length, the fibre is left to its springs.
+  Eigen::Matrix3Xd beyond = system.rest_position;
+  beyond.row(2) *= 1.3;
+  Eigen::Matrix3Xd left = beyond;
+  stretchWithTone(system, stiffness, {}, rest_arcs, left);
+  EXPECT_EQ((left - beyond).cwiseAbs().maxCoeff(), 0.0);
+}
+
+// At one sweep a frame the tissue drag holds a belly near the previous frame's length carried rigidly; carried along
+// its fibres with its tone, the belly takes the tone's length within the frames the bones take to move. (In this short
+// straight belly the carrying, a blend of the two bones, already stretches it most of the way; on the bundled gait the
+// drag carrying rigidly left the biceps femoris short head a third of gait2392's excursion, docs/lengths.md.)
+TEST(Tendon, AStreamedBellyTakesItsTonesLengthWhenTheDragFollowsTheTone) {
+  const HangingScene scene = hangingMuscle();
+  const auto stretch = [&](bool drag_follows_tone) {
+    PipelineSettings s = settings(10.0);
+    s.simulation.model.fibre_prestretch = 0.2;
+    s.simulation.model.fibre_tone = 1.0;
+    s.simulation.block_descent.tissue_relaxation_s = 0.001;
+    s.simulation.drag_follows_tone = drag_follows_tone;
+    DeformationPipeline pipeline(describedByName(scene.muscles), scene.muscles, scene.bones, s);
+    pipeline.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+    const double rest = meanBellyLength(pipeline);
+    const FrameStopping one_sweep = FrameStopping::of(StoppingSettings::afterIterations(1));
+    for (int frame = 1; frame <= 20; ++frame)  // 0.7 % of the tone a frame, within a frame's limit
+      pipeline.solve(apart(0.005 * frame), StartMode::warm, one_sweep, false, false);
+    return meanBellyLength(pipeline) / rest - 1.0;
+  };
+  ModelSettings model = settings(10.0).simulation.model;
+  model.fibre_tone = 1.0;
+  const double toned = tonedShare(buildMassSpringSystem(scene.muscles, scene.bones, model), apart(0.10));
+  const double rigid = stretch(false), following = stretch(true);
+  std::printf("bones 10 %% apart over 20 frames of one sweep: the tone asks %.1f %%, the belly stretched %.1f %% with the "
+              "drag carrying it rigidly, %.1f %% with the drag following the tone\n", 100 * toned, 100 * rigid,
+              100 * following);
+  EXPECT_GT(following, 0.95 * toned);
+  EXPECT_LT(following, 1.05 * toned);
+  EXPECT_LT(rigid, following);
 }

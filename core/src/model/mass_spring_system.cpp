@@ -20,6 +20,16 @@ std::size_t MassSpringSystem::modelBytes() const {
   return per_particle * particles + per_spring * springs.size();
 }
 
+Eigen::VectorXd springStiffnessSums(const MassSpringSystem& system) {
+  Eigen::VectorXd sums = Eigen::VectorXd::Zero(system.particleCount());
+  for (std::size_t s = 0; s < system.springs.size(); ++s) {
+    const double k = system.springs.stiffness[static_cast<Eigen::Index>(s)];
+    sums[system.springs.first[s]] += k;
+    sums[system.springs.second[s]] += k;
+  }
+  return sums;
+}
+
 double MassSpringSystem::medianCollisionRadius() const {
   std::vector<double> radii;
   for (Eigen::Index i = 0; i < radius.size(); ++i)
@@ -28,20 +38,6 @@ double MassSpringSystem::medianCollisionRadius() const {
 }
 
 namespace {
-// Calls visit(begin, count) for each fibre's particles in order (particles of one fibre are stored consecutively, from
-// the fibre start), tendon anchors left out.
-template <class Visit>
-void forEachFibre(const MassSpringSystem& system, Visit&& visit) {
-  Eigen::Index begin = 0;
-  for (Eigen::Index i = 1; i <= system.particleCount(); ++i) {
-    const bool fibre_ends = i == system.particleCount() || system.fibre_of[i] != system.fibre_of[i - 1] ||
-                            system.muscle_of[i] != system.muscle_of[i - 1];
-    if (!fibre_ends) continue;
-    if (system.fibre_of[begin] != kTendonAnchor) visit(begin, i - begin);
-    begin = i;
-  }
-}
-
 // Per point of the polyline, whether it turns back there (the segments before and after it more than 90 degrees
 // apart); false at the ends.
 std::vector<bool> turnsBack(const Eigen::Ref<const Eigen::Matrix3Xd>& fibre) {

@@ -1,8 +1,12 @@
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 
+#include "muscle_deformation/core/base/median.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 namespace muscle_deformation {
 
@@ -165,6 +169,7 @@ bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms)
     if (span.first_anchor < 0) continue;
     factor[f] = fibreToneFactor(tone, span, fibreSpanLength(system, tone, span, transforms) - span.rest_span_m);
   }
+  tone.factor = factor;
   bool changed = false;
   for (std::size_t s = 0; s < tone.first_fibre.size(); ++s) {
     const std::int32_t a = tone.first_fibre[s], b = tone.second_fibre[s];
@@ -178,6 +183,92 @@ bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms)
     }
   }
   return changed;
+}
+
+std::vector<double> fibreArcLengths(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions) {
+  std::vector<double> arcs;
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+    double arc = 0;
+    for (Eigen::Index k = begin + 1; k < begin + count; ++k) arc += (positions.col(k) - positions.col(k - 1)).norm();
+    arcs.push_back(arc);
+  });
+  return arcs;
+}
+
+void stretchWithTone(const MassSpringSystem& system, const Eigen::VectorXd& stiffness_sum,
+                     const std::vector<double>& previous_factor, const std::vector<double>& previous_arcs,
+                     Eigen::Matrix3Xd& carried) {
+  const BellyTone& tone = system.belly_tone;
+  if (tone.empty() || tone.factor.size() != tone.fibres.size()) return;
+  if (previous_arcs.size() != tone.fibres.size() || carried.cols() != system.particleCount() ||
+      stiffness_sum.size() != system.particleCount())
+    throw std::invalid_argument("stretchWithTone: " + std::to_string(previous_arcs.size()) + " arc lengths for " +
+                                std::to_string(tone.fibres.size()) + " fibres, " + std::to_string(carried.cols()) +
+                                " positions and " + std::to_string(stiffness_sum.size()) + " stiffness sums for " +
+                                std::to_string(system.particleCount()) + " particles");
+  if (!previous_factor.empty() && previous_factor.size() != tone.fibres.size())
+    throw std::invalid_argument("stretchWithTone: " + std::to_string(previous_factor.size()) + " tone factors for " +
+                                std::to_string(tone.fibres.size()) + " fibres");
+  std::size_t fibre = 0;
+  std::vector<double> arc, stiffness;
+  forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
+    const std::size_t f = fibre++;
+    if (count < 3) return;
+    const double tone_ratio = tone.factor[f] / (previous_factor.empty() ? 1.0 : previous_factor[f]);
+    if (tone_ratio == 1.0) return;
+    arc.assign(static_cast<std::size_t>(count), 0.0);
+    for (Eigen::Index k = 1; k < count; ++k)
+      arc[k] = arc[k - 1] + (carried.col(begin + k) - carried.col(begin + k - 1)).norm();
+    const double length = arc.back();
+    if (!(length > 0)) return;
+    // What the bones' carrying already stretched is not added again, and the stretch never goes against the tone's
+    // change: a fibre the carrying distorted (a blend of two bones across a joint) is left to its springs. (Aiming at
+    // previous_arcs x tone_ratio whatever the carrying did made a fibre that crossed the knee run away frame by frame.)
+    // At most kMaxToneStretchPerFrame a frame.
+    const double ratio = std::clamp(std::clamp(previous_arcs[f] * tone_ratio / length, std::min(1.0, tone_ratio),
+                                               std::max(1.0, tone_ratio)),
+                                    1.0 - kMaxToneStretchPerFrame, 1.0 + kMaxToneStretchPerFrame);
+    if (ratio == 1.0) return;
+    // About the fibre's fixed particles: the part before its first fixed particle stretches about that one, the part
+    // after its last about that one, the part between them not at all (its springs take the tone). Without one, about
+    // the mean of its particles' positions along it weighted by their springs' stiffness (the drag's weights: the
+    // centre that asks the least of the drag).
+    Eigen::Index first_fixed = count, last_fixed = -1;
+    double weighted_arc = 0, weight = 0;
+    stiffness.clear();
+    for (Eigen::Index k = 0; k < count; ++k) {
+      if (system.is_fixed[static_cast<std::size_t>(begin + k)]) {
+        first_fixed = std::min(first_fixed, k);
+        last_fixed = k;
+        continue;
+      }
+      stiffness.push_back(stiffness_sum[begin + k]);
+      weighted_arc += stiffness_sum[begin + k] * arc[static_cast<std::size_t>(k)];
+      weight += stiffness_sum[begin + k];
+    }
+    if (!(weight > 0)) return;
+    // A particle stiffer than the fibre's median particle moves less by that ratio, so that the drag (weighted by the
+    // same stiffness) pulls it no harder than the median one: a short tendon's end (its stiffness grows as its length
+    // shrinks) moved with the rest held a stream at one sweep a frame at a residual of 11-16 instead of 0.02 (hundreds
+    // of newtons on the particle); a tendon's end moved with the fibre while its tendon held it back let its neighbour
+    // fold past it (semitendinosus, a fibre 1.8x as tortuous as at rest).
+    const double typical = upperMedian(stiffness);
+    const Eigen::Matrix3Xd fibre_before = carried.middleCols(begin, count);
+    for (Eigen::Index k = 0; k < count; ++k) {
+      if (system.is_fixed[static_cast<std::size_t>(begin + k)]) continue;
+      double centre = weighted_arc / weight;
+      if (last_fixed >= 0) {
+        if (k > first_fixed && k < last_fixed) continue;
+        centre = arc[static_cast<std::size_t>(k < first_fixed ? first_fixed : last_fixed)];
+      }
+      const Eigen::Vector3d along =
+          fibre_before.col(std::min<Eigen::Index>(k + 1, count - 1)) - fibre_before.col(std::max<Eigen::Index>(k - 1, 0));
+      const double norm = along.norm();
+      const double held = std::min(1.0, typical / stiffness_sum[begin + k]);
+      if (norm > 0)
+        carried.col(begin + k) += held * (ratio - 1.0) * (arc[static_cast<std::size_t>(k)] - centre) / norm * along;
+    }
+  });
 }
 
 ParticleState restState(const MassSpringSystem& system) {

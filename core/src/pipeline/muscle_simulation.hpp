@@ -87,6 +87,9 @@ class MuscleSimulation {
   std::unique_ptr<SoftBodySolver> solver_;  // the one settings_.solver_kind names (solver_factory.hpp)
   // The force that holds the rest shape in balance, rest frame (restBalanceForces), when the solver's tie carries it.
   Eigen::Matrix3Xd rest_balance_ = Eigen::Matrix3Xd(3, 0);
+  // Per particle, its springs' summed stiffness, for the tissue's stretch with the tone (SimulationSettings::
+  // drag_follows_tone; empty without it).
+  Eigen::VectorXd spring_stiffness_sum_;
   std::unique_ptr<CollisionWorld> collision_;
   BoneFields bone_fields_;
   // MassSpringSystem::medianCollisionRadius of the final model, once (FrameStopping::deep_contact_sweeps).

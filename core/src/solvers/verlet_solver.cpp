@@ -26,18 +26,8 @@ double criticalDamping(const MassSpringSystem& system) {
 }
 
 namespace {
-Eigen::VectorXd stiffnessSums(const MassSpringSystem& system) {
-  Eigen::VectorXd sums = Eigen::VectorXd::Zero(system.particleCount());
-  for (std::size_t s = 0; s < system.springs.size(); ++s) {
-    const double k = system.springs.stiffness[static_cast<Eigen::Index>(s)];
-    sums[system.springs.first[s]] += k;
-    sums[system.springs.second[s]] += k;
-  }
-  return sums;
-}
-
 double stabilityTimeStep(const MassSpringSystem& system, const Eigen::VectorXd& mass) {
-  const Eigen::VectorXd stiffness_sum = stiffnessSums(system);
+  const Eigen::VectorXd stiffness_sum = springStiffnessSums(system);
   double omega_squared = 0;
   for (Eigen::Index i = 0; i < system.particleCount(); ++i)
     if (!system.is_fixed[i]) omega_squared = std::max(omega_squared, 2.0 * stiffness_sum[i] / mass[i]);
@@ -52,7 +42,7 @@ Eigen::VectorXd stiffnessScaledMass(const MassSpringSystem& system) {
   // uniform masses they alone dictate the explicit step for every particle. Raising the mass of those particles
   // until no particle is stiffer than the median one changes the dynamics only, not the equilibrium the solver
   // converges to (there are no external forces), and lets the step follow the median particle.
-  const Eigen::VectorXd stiffness_sum = stiffnessSums(system);
+  const Eigen::VectorXd stiffness_sum = springStiffnessSums(system);
   std::vector<double> omega_squared;
   for (Eigen::Index i = 0; i < system.particleCount(); ++i)
     if (!system.is_fixed[i] && stiffness_sum[i] > 0) omega_squared.push_back(2.0 * stiffness_sum[i] / system.mass[i]);

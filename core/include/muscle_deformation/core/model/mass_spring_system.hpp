@@ -73,6 +73,8 @@ struct BellyTone {
   std::vector<std::int32_t> first_fibre, second_fibre;
   Eigen::VectorXd alignment_squared;
   Eigen::VectorXd untoned_rest_length;
+  // Per fibre: the factor the last updateBellyTone gave its rest length (empty before the first; 1 at rest).
+  std::vector<double> factor;
   bool empty() const { return gain == 0 || fibres.empty(); }
 };
 
@@ -133,6 +135,23 @@ Eigen::Matrix3Xd restBalanceForces(const MassSpringSystem& system);
 // muscles' belly paths (per muscle, or empty: straight spans). Call after the tendons and the rest lengths are final.
 BellyTone buildBellyTone(const MassSpringSystem& system, const std::vector<double>& alignment, double gain,
                          std::vector<BellyPath> belly_paths = {});
+
+// Per particle, the summed stiffness of its springs (N/m).
+Eigen::VectorXd springStiffnessSums(const MassSpringSystem& system);
+
+// Calls visit(begin, count) for each fibre's particles in order (particles of one fibre are stored consecutively, from
+// the fibre start), tendon anchors left out; the order of BellyTone::fibres.
+template <class Visit>
+void forEachFibre(const MassSpringSystem& system, Visit&& visit) {
+  Eigen::Index begin = 0;
+  for (Eigen::Index i = 1; i <= system.particleCount(); ++i) {
+    const bool fibre_ends = i == system.particleCount() || system.fibre_of[i] != system.fibre_of[i - 1] ||
+                            system.muscle_of[i] != system.muscle_of[i - 1];
+    if (!fibre_ends) continue;
+    if (system.fibre_of[begin] != kTendonAnchor) visit(begin, i - begin);
+    begin = i;
+  }
+}
 
 // The deformed fibres: each fibre's particles in order from its start (all muscles, in particle order), tendon
 // anchors left out.

@@ -54,6 +54,24 @@ double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, co
 // a fibre without a belly length.
 double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span_change_m, bool* limited = nullptr);
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms);
+// Each fibre's arc length at `positions` (tendon anchors left out), in the order of BellyTone::fibres.
+std::vector<double> fibreArcLengths(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions);
+// The most a fibre stretches with its tone in one frame (stretchWithTone), as a share of its length. 0.01, measured with
+// the stability bench (thigh13, 2026-11-28): unlimited, the gait played 4x faster (the tone changing 4x as much a frame)
+// reached a strain 99th percentile of 0.66 median and a fibre 2.0x as tortuous as at rest, against 0.36 and 1.27 with
+// the previous answer carried rigidly; held to 1 % a frame, 0.33 and 1.22. The 1-cycle gait's lengths against gait2392
+// keep most of the gain (docs/lengths.md).
+constexpr double kMaxToneStretchPerFrame = 0.01;
+// The tissue carries the belly along its fibres as its tone changes (SimulationSettings::drag_follows_tone): each fibre
+// of `carried` (the previous answer moved with the bones, or the rest shape so moved) is stretched along itself by the
+// ratio that brings its arc length to `previous_arcs` (before the carrying) x the change of its tone factor since
+// `previous_factor` (empty: from rest, 1), held between 1 and that change and to +-kMaxToneStretchPerFrame: about its fixed particles (those and the
+// particles between them stay), or without one about its particles' mean position along it weighted by `stiffness_sum`
+// (springStiffnessSums); a particle stiffer than the fibre's median moves less by that ratio. Nothing without the tone
+// or before its first update.
+void stretchWithTone(const MassSpringSystem& system, const Eigen::VectorXd& stiffness_sum,
+                     const std::vector<double>& previous_factor, const std::vector<double>& previous_arcs,
+                     Eigen::Matrix3Xd& carried);
 
 // State at rest: positions = rest positions, zero velocity.
 ParticleState restState(const MassSpringSystem& system);

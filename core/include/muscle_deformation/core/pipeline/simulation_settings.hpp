@@ -39,6 +39,12 @@ struct SimulationSettings {
   BlockDescentSettings block_descent;           // for SolverKind::block_descent (and newton_krylov's energy)
   NewtonKrylovSettings newton_krylov;           // for SolverKind::newton_krylov
   StartPrediction prediction;                   // warm frames of block_descent / newton_krylov with tissue drag
+  // With the belly's tone (ModelSettings::fibre_tone) and a tissue drag: on a warm frame, where the tissue carries the
+  // belly (the drag's anchor and the frame's start) also stretches each fibre along itself by its tone's change since
+  // the previous frame (stretchWithTone), as the tissue around a lengthening muscle lengthens with it. Without it the drag holds each
+  // fibre at the previous answer's length carried rigidly, and a streamed belly took about three fifths of its span's
+  // change (the biceps femoris short head a third; docs/lengths.md). false: the drag carries the answer rigidly.
+  bool drag_follows_tone = false;
   CollisionSettings collision;
   bool collisions = true;  // false: the MSS alone (for comparisons)
 };
