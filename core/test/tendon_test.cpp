@@ -550,3 +550,30 @@ TEST(Tendon, AStreamedBellyTakesItsTonesLengthWhenTheDragFollowsTheTone) {
   EXPECT_LT(following, 1.05 * toned);
   EXPECT_LT(rigid, following);
 }
+
+// A frame continued from another stream's answer (DeformationPipeline::continueFrom: the service's warm start, the
+// benches' references) is the frame that stream solves: the tissue's stretch starts from the tone at the pose continued,
+// not at the pose the pipeline solved last.
+TEST(Tendon, AFrameContinuedFromAnotherStreamStretchesFromTheToneAtThePoseContinued) {
+  const HangingScene scene = hangingMuscle();
+  PipelineSettings s = settings(10.0);
+  s.simulation.model.fibre_prestretch = 0.2;
+  s.simulation.model.fibre_tone = 1.0;
+  s.simulation.block_descent.tissue_relaxation_s = 0.001;
+  s.simulation.drag_follows_tone = true;
+  s.simulation.prediction.predict_start = false;  // both frames start where the tissue carries the particles
+  const FrameStopping one_sweep = FrameStopping::of(StoppingSettings::afterIterations(1));
+  const FrameStopping five_sweeps = FrameStopping::of(StoppingSettings::afterIterations(5));
+  DeformationPipeline stream(describedByName(scene.muscles), scene.muscles, scene.bones, s);
+  stream.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+  stream.solve(apart(0.005), StartMode::warm, one_sweep, false, false);
+  const Eigen::Matrix3Xd continued = stream.state().position;
+  stream.solve(apart(0.01), StartMode::warm, five_sweeps, false, false);
+
+  DeformationPipeline other(describedByName(scene.muscles), scene.muscles, scene.bones, s);
+  other.solve(apart(0.0), StartMode::cold, kConverged, false, false);
+  other.solve(apart(-0.05), StartMode::warm, one_sweep, false, false);  // a tone far from the one continued
+  other.continueFrom(apart(0.005), continued);
+  other.solve(apart(0.01), StartMode::warm, five_sweeps, false, false);
+  EXPECT_LT((other.state().position - stream.state().position).cwiseAbs().maxCoeff(), 1e-12);
+}

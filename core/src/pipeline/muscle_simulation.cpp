@@ -133,6 +133,11 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   previous_correction_change_.resize(3, 0);
   previous_transforms_ = transforms;
   has_previous_ = true;
+  // The next frame's stretch with the tone (SimulationSettings::drag_follows_tone) starts from the tone at this pose,
+  // not at whatever pose the simulation solved last (which put a frame continued from another stream 0.47 mm RMS off
+  // the same frame solved in that stream, all 26 muscles, realtime bench).
+  const bool tendons_changed = updateTendonRestLengths(system_, transforms);
+  if (updateBellyTone(system_, transforms) || tendons_changed) solver_->restLengthsChanged();
 }
 
 void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
