@@ -1,5 +1,6 @@
 #include "muscle_deformation/core/model/rigid_pretransform.hpp"
 
+#include "muscle_deformation/core/base/geometry.hpp"
 #include "muscle_deformation/core/base/median.hpp"
 
 #include <algorithm>
@@ -163,13 +164,13 @@ double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span
 bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms) {
   BellyTone& tone = system.belly_tone;
   if (tone.empty()) return false;
-  std::vector<double> factor(tone.fibres.size(), 1.0);
+  std::vector<double>& factor = tone.factor;
+  factor.assign(tone.fibres.size(), 1.0);
   for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
     const FibreSpan& span = tone.fibres[f];
     if (span.first_anchor < 0) continue;
     factor[f] = fibreToneFactor(tone, span, fibreSpanLength(system, tone, span, transforms) - span.rest_span_m);
   }
-  tone.factor = factor;
   bool changed = false;
   for (std::size_t s = 0; s < tone.first_fibre.size(); ++s) {
     const std::int32_t a = tone.first_fibre[s], b = tone.second_fibre[s];
@@ -188,9 +189,7 @@ bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms)
 std::vector<double> fibreArcLengths(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions) {
   std::vector<double> arcs;
   forEachFibre(system, [&](Eigen::Index begin, Eigen::Index count) {
-    double arc = 0;
-    for (Eigen::Index k = begin + 1; k < begin + count; ++k) arc += (positions.col(k) - positions.col(k - 1)).norm();
-    arcs.push_back(arc);
+    arcs.push_back(polylineLength(positions.middleCols(begin, count)));
   });
   return arcs;
 }
