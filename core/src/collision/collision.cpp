@@ -110,6 +110,14 @@ struct CollisionWorld::Impl {
   double listed_margin = 0;
   bool has_listed = false;
   std::vector<std::int32_t> far_particles;  // measureListed's scratch: moved at least the margin since, ascending
+  // findContacts' scratch: the bone fields' contacts, found beside the muscle pairs and entered after them.
+  struct FieldContact {
+    std::int32_t particle;
+    Eigen::Vector3d point, normal;
+    int bone;
+    Eigen::Index k;
+  };
+  std::vector<FieldContact> field_found;
 
   // Response accumulators, per particle; only touched entries are reset after each pass.
   Eigen::Matrix3Xd displacement;
@@ -502,22 +510,52 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
   w.gatherMuscles(state);
   stats_.response_ms += millisecondsSince(start);
 
-  start = Clock::now();
-  w.findMusclePairs();
-  std::int64_t pairs_found = static_cast<std::int64_t>(w.muscle_pairs.size());
-  int muscle_contacts = 0, bone_contacts = 0;
-  for (const ObjectSpherePair& p : w.muscle_pairs) {
-    const std::size_t a = static_cast<std::size_t>(p.first_object), b = static_cast<std::size_t>(p.second_object);
-    if (w.sphere_fixed[a][static_cast<std::size_t>(p.first)] && w.sphere_fixed[b][static_cast<std::size_t>(p.second)])
-      continue;
-    contacts.pairs.push_back({w.sphere_particle[a][static_cast<std::size_t>(p.first)],
-                              w.sphere_particle[b][static_cast<std::size_t>(p.second)],
-                              w.muscle_radius[a][p.first] + w.muscle_radius[b][p.second]});
-    ++muscle_contacts;
+  // The muscle pairs (the octree's traversal) and the bone fields' contacts read the same positions and write apart:
+  // on two threads they run side by side, each into its own list, and the lists are the same as one after the other.
+  std::vector<Impl::FieldContact>& field_found = w.field_found;
+  field_found.clear();
+  double muscle_ms = 0, field_ms = 0;
+  int field_contacts = 0;
+  const auto findMuscleContacts = [&] {
+    const auto muscle_start = Clock::now();
+    w.findMusclePairs();
+    for (const ObjectSpherePair& p : w.muscle_pairs) {
+      const std::size_t a = static_cast<std::size_t>(p.first_object), b = static_cast<std::size_t>(p.second_object);
+      if (w.sphere_fixed[a][static_cast<std::size_t>(p.first)] && w.sphere_fixed[b][static_cast<std::size_t>(p.second)])
+        continue;
+      contacts.pairs.push_back({w.sphere_particle[a][static_cast<std::size_t>(p.first)],
+                                w.sphere_particle[b][static_cast<std::size_t>(p.second)],
+                                w.muscle_radius[a][p.first] + w.muscle_radius[b][p.second]});
+    }
+    muscle_ms = millisecondsSince(muscle_start);
+  };
+  const auto findFieldContacts = [&] {
+    const auto field_start = Clock::now();
+    field_contacts = w.forEachFieldContact(state, std::max(0.0, margin_m),
+                                           [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal,
+                                               int bone, Eigen::Index k) {
+      field_found.push_back({particle, Eigen::Vector3d(state.position.col(particle) + depth * normal), normal, bone, k});
+    });
+    field_ms = millisecondsSince(field_start);
+  };
+  if (threads_ > 1 && !w.bone_fields.empty()) {
+#pragma omp parallel sections num_threads(2)
+    {
+#pragma omp section
+      findMuscleContacts();
+#pragma omp section
+      findFieldContacts();
+    }
+  } else {
+    findMuscleContacts();
+    findFieldContacts();
   }
-  stats_.muscle_cd_ms += millisecondsSince(start);
+  std::int64_t pairs_found = static_cast<std::int64_t>(w.muscle_pairs.size());
+  const int muscle_contacts = static_cast<int>(contacts.pairs.size());
+  stats_.muscle_cd_ms += muscle_ms;
 
   start = Clock::now();
+  int bone_contacts = 0;
   const int skipped = w.forEachMuscleBoneOverlap(
       settings_.bone_reach_margin_m, settings_.skip_bones_out_of_reach, [&](int m, int b) {
     pairs_found += static_cast<std::int64_t>(w.pairs.size());
@@ -532,13 +570,12 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
     }
   });
   w.listed_field.clear();
-  bone_contacts += w.forEachFieldContact(state, std::max(0.0, margin_m),
-                                         [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal,
-                                             int bone, Eigen::Index k) {
-    contacts.half_spaces.push_back({particle, Eigen::Vector3d(state.position.col(particle) + depth * normal), normal});
-    w.listed_field.emplace_back(bone, k);
-  });
-  stats_.bone_cd_ms += millisecondsSince(start);
+  for (const Impl::FieldContact& found : field_found) {
+    contacts.half_spaces.push_back({found.particle, found.point, found.normal});
+    w.listed_field.emplace_back(found.bone, found.k);
+  }
+  bone_contacts += field_contacts;
+  stats_.bone_cd_ms += millisecondsSince(start) + field_ms;
 
   stats_.contacts = muscle_contacts + bone_contacts;
   stats_.muscle_muscle_contacts = muscle_contacts;

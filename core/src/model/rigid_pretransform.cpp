@@ -12,6 +12,10 @@
 namespace muscle_deformation {
 
 namespace {
+// Below these counts a pass is not worth the threads' start (a small analytic model stays on one thread).
+constexpr Eigen::Index kParallelParticles = 4096;
+constexpr std::int64_t kParallelFibres = 256;
+
 void checkTransforms(const MassSpringSystem& system, const BoneTransforms& transforms) {
   for (Eigen::Index i = 0; i < system.blend_bone.cols(); ++i)
     for (int k = 0; k < MassSpringSystem::kBlendBones; ++k)
@@ -44,22 +48,25 @@ Eigen::Vector3d blendedMotion(const MassSpringSystem& system, const BoneTransfor
 }
 }  // namespace
 
-void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state) {
+void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state,
+                       int threads) {
   checkTransforms(system, transforms);
   const Eigen::Index n = system.particleCount();
   state.position.resize(3, n);
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
   for (Eigen::Index i = 0; i < n; ++i) state.position.col(i) = blendedMotion(system, transforms, i, system.rest_position.col(i));
   state.previous_position = state.position;
 }
 
 Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTransforms& transforms,
-                                  const Eigen::Matrix3Xd& rest_vectors) {
+                                  const Eigen::Matrix3Xd& rest_vectors, int threads) {
   checkTransforms(system, transforms);
   const Eigen::Index n = system.particleCount();
   if (rest_vectors.cols() != n)
     throw std::invalid_argument("carryRestVectors: " + std::to_string(rest_vectors.cols()) + " vectors for " +
                                 std::to_string(n) + " particles");
   Eigen::Matrix3Xd carried(3, n);
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
   for (Eigen::Index i = 0; i < n; ++i) {
     const Eigen::Vector3d vector = rest_vectors.col(i);
     carried.col(i) = blendOverBones(system, i, vector,
@@ -69,7 +76,7 @@ Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTran
 }
 
 void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_transforms,
-               const BoneTransforms& transforms, ParticleState& state) {
+               const BoneTransforms& transforms, ParticleState& state, int threads) {
   checkTransforms(system, transforms);
   checkTransforms(system, previous_transforms);
   if (state.position.cols() != system.particleCount())
@@ -77,7 +84,9 @@ void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_tr
                                 " particles, the model " + std::to_string(system.particleCount()));
   BoneTransforms motion(transforms.size());
   for (std::size_t b = 0; b < transforms.size(); ++b) motion[b] = transforms[b] * previous_transforms[b].inverse();
-  for (Eigen::Index i = 0; i < system.particleCount(); ++i) {
+  const Eigen::Index n = system.particleCount();
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
+  for (Eigen::Index i = 0; i < n; ++i) {
     if (system.is_fixed[i] && system.fixed_bone[i] != kNoBone)
       state.position.col(i) = transforms[system.fixed_bone[i]] * system.rest_position.col(i);
     else if (!system.is_fixed[i])
@@ -161,19 +170,25 @@ double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span
   return 1.0 + held;
 }
 
-bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms) {
+bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms, int threads) {
   BellyTone& tone = system.belly_tone;
   if (tone.empty()) return false;
   std::vector<double>& factor = tone.factor;
   factor.assign(tone.fibres.size(), 1.0);
-  for (std::size_t f = 0; f < tone.fibres.size(); ++f) {
-    const FibreSpan& span = tone.fibres[f];
+  const auto fibres = static_cast<std::int64_t>(tone.fibres.size());
+  threads = std::max(1, threads);
+#pragma omp parallel for num_threads(threads) schedule(static) if (fibres > kParallelFibres)
+  for (std::int64_t f = 0; f < fibres; ++f) {
+    const FibreSpan& span = tone.fibres[static_cast<std::size_t>(f)];
     if (span.first_anchor < 0) continue;
-    factor[f] = fibreToneFactor(tone, span, fibreSpanLength(system, tone, span, transforms) - span.rest_span_m);
+    factor[static_cast<std::size_t>(f)] =
+        fibreToneFactor(tone, span, fibreSpanLength(system, tone, span, transforms) - span.rest_span_m);
   }
   bool changed = false;
-  for (std::size_t s = 0; s < tone.first_fibre.size(); ++s) {
-    const std::int32_t a = tone.first_fibre[s], b = tone.second_fibre[s];
+  const auto springs = static_cast<std::int64_t>(tone.first_fibre.size());
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(|| : changed) if (springs > kParallelParticles)
+  for (std::int64_t s = 0; s < springs; ++s) {
+    const std::int32_t a = tone.first_fibre[static_cast<std::size_t>(s)], b = tone.second_fibre[static_cast<std::size_t>(s)];
     if (a < 0 || b < 0) continue;
     const auto e = static_cast<Eigen::Index>(s);
     const double f = 0.5 * (factor[static_cast<std::size_t>(a)] + factor[static_cast<std::size_t>(b)]);

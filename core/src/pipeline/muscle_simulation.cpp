@@ -93,6 +93,7 @@ MuscleSimulation::MuscleSimulation(std::vector<Muscle> muscles, std::vector<Bone
       collision_ = std::make_unique<CollisionWorld>(system_, std::move(model.bone_spheres), settings_.collision,
                                                     bone_names);
     }
+    collision_->setThreads(passThreads());
   } else {
     system_ = buildMassSpringSystem(muscles_, bones_, settings_.model, &build_report_);
   }
@@ -137,7 +138,7 @@ void MuscleSimulation::continueFrom(const BoneTransforms& transforms, const Eige
   // not at whatever pose the simulation solved last (which put a frame continued from another stream 0.47 mm RMS off
   // the same frame solved in that stream, all 26 muscles, realtime bench).
   const bool tendons_changed = updateTendonRestLengths(system_, transforms);
-  if (updateBellyTone(system_, transforms) || tendons_changed) solver_->restLengthsChanged();
+  if (updateBellyTone(system_, transforms, passThreads()) || tendons_changed) solver_->restLengthsChanged();
 }
 
 void MuscleSimulation::keepVolume(const SurfaceSkinning& skinning) {
@@ -236,7 +237,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     previous_tone = system_.belly_tone.factor;
     previous_arcs = fibreArcLengths(system_, state_.position);
   }
-  if (updateBellyTone(system_, transforms) || tendons_changed) solver_->restLengthsChanged();
+  if (updateBellyTone(system_, transforms, passThreads()) || tendons_changed) solver_->restLengthsChanged();
   const bool predict = drag && settings_.prediction.predict_start && stats.warm_started &&
                        correction_.cols() == system_.particleCount();
   ParticleState predicted;
@@ -247,12 +248,12 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     if (extrapolation > 0 && correction_change_.cols() == correction_.cols() &&
         previous_correction_change_.cols() == correction_.cols())
       predicted.position += extrapolation * confirmedTrend(correction_change_, previous_correction_change_);
-    warmStart(system_, previous_transforms_, transforms, predicted);
+    warmStart(system_, previous_transforms_, transforms, predicted, passThreads());
   }
   if (stats.warm_started)
-    warmStart(system_, previous_transforms_, transforms, state_);
+    warmStart(system_, previous_transforms_, transforms, state_, passThreads());
   else
-    rigidPretransform(system_, transforms, state_);
+    rigidPretransform(system_, transforms, state_, passThreads());
   if (drag_stretches) {
     stretchWithTone(system_, spring_stiffness_sum_, previous_tone, previous_arcs, state_.position);
     if (predict) stretchWithTone(system_, spring_stiffness_sum_, previous_tone, previous_arcs, predicted.position);
@@ -271,7 +272,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     // positions are that already).
     if (stats.warm_started) {
       ParticleState rest_carried;
-      rigidPretransform(system_, transforms, rest_carried);
+      rigidPretransform(system_, transforms, rest_carried, passThreads());
       state_.rest_carried_position = std::move(rest_carried.position);
     } else {
       state_.rest_carried_position = state_.carried_position;
@@ -280,7 +281,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
     state_.rest_carried_position.resize(3, 0);
   }
   if (drag && solver_->balancesRestShape())
-    state_.rest_balance_force = carryRestVectors(system_, transforms, rest_balance_);
+    state_.rest_balance_force = carryRestVectors(system_, transforms, rest_balance_, passThreads());
   else
     state_.rest_balance_force.resize(3, 0);
   solver_->setFrameInterval(stats.warm_started ? frame_interval_s : kNominalFrameIntervalS);
@@ -438,7 +439,7 @@ void MuscleSimulation::finishFrame(const BoneTransforms& transforms, bool drag, 
   // construction, and a pose-consistent answer rather than none.
   stats.finite = state_.position.allFinite();
   if (!stats.finite) {
-    rigidPretransform(system_, transforms, state_);
+    rigidPretransform(system_, transforms, state_, passThreads());
     stats.solver.diverged = true;
     stats.fell_back_to_pretransform = true;
     if (collision_) stats.collision = collision_->measure(state_);

@@ -76,6 +76,9 @@ class MuscleSimulation {
   // Finite check (with the pre-transform as the last resort) and what the next warm start continues; `refinement`: the
   // frame continued the last one (refine()).
   void finishFrame(const BoneTransforms& transforms, bool drag, bool refinement, FrameStats& stats);
+  // Threads for the frame's passes over every particle or spring outside the solver (carrying with the bones, the
+  // tone), as the skinned volume takes them: each element is computed alone, so results do not depend on it.
+  int passThreads() const { return parallelThreads(threads_, SolveLimits{}); }
 
   std::vector<Muscle> muscles_;
   std::vector<Bone> bones_;

@@ -245,8 +245,8 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   for (std::size_t s = 0; s < springs.size(); ++s) {
     const auto e = static_cast<Eigen::Index>(s);
     const double k = springs.stiffness[e], l0 = springs.rest_length[e];
-    const NeighbourSpring packed_to_second{springs.second[s], k, l0};
-    const NeighbourSpring packed_to_first{springs.first[s], k, l0};
+    const NeighbourSpring packed_to_second{springs.second[s], k};
+    const NeighbourSpring packed_to_first{springs.first[s], k};
     spring_of_entry[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])])] = static_cast<std::int32_t>(s);
     neighbours_[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.first[s])]++)] = packed_to_second;
     spring_of_entry[static_cast<std::size_t>(fill[static_cast<std::size_t>(springs.second[s])])] = static_cast<std::int32_t>(s);
@@ -291,6 +291,8 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
   // particle-ordered lists colour by colour (the sweep's cost is mostly reading them).
   std::vector<NeighbourSpring> visit_order;
   visit_order.reserve(neighbours_.size());
+  neighbour_rest_length_.clear();
+  neighbour_rest_length_.reserve(neighbours_.size());
   slot_spring_begin_.assign(coloured_particles_.size() + 1, 0);
   std::vector<char> tendon_spring(springs.size(), 0);
   for (const TendonPath& tendon : system_.tendon_paths) tendon_spring[static_cast<std::size_t>(tendon.spring)] = 1;
@@ -301,6 +303,7 @@ BlockDescentSolver::BlockDescentSolver(const MassSpringSystem& system, BlockDesc
       if (tendon_spring[static_cast<std::size_t>(spring)] || !system_.belly_tone.empty())
         pose_dependent_entries_.emplace_back(spring, static_cast<std::int32_t>(visit_order.size()));
       visit_order.push_back(neighbours_[static_cast<std::size_t>(k)]);
+      neighbour_rest_length_.push_back(springs.rest_length[spring]);
     }
     slot_spring_begin_[slot + 1] = static_cast<std::int32_t>(visit_order.size());
   }
@@ -337,7 +340,8 @@ void BlockDescentSolver::limitStep(std::int32_t p, const Eigen::Vector3d& start,
   if (length > bound) x = start + (bound / length) * (x - start);
 }
 
-void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end) {
+void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end,
+                                          int threads) {
   // The colour's particles of one muscle minimise, together, their own quadratic models (step a_p = H_p^-1 f_p without
   // the volume) plus k/2 (V + sum g_p . d_p - V_rest)^2, which couples them through one scalar: with b_p = H_p^-1 g_p,
   // d_p = a_p - mu b_p and mu = k (V - V_rest + sum g.a) / (1 + k sum g.b) (Sherman-Morrison). Each particle taking the
@@ -364,7 +368,8 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
     const double k = volume_.stiffness[m];
     colour_a_[m] = k * (volume_now_[m] - volume_.target(m) + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
   }
-  // A few operations per particle: serial, a parallel region per colour would cost more in its barrier.
+  // Each particle alone, split over the sweep's threads (the same result).
+#pragma omp parallel for num_threads(threads) schedule(static) if (end - begin > 2048)
   for (std::int32_t k = begin; k < end; ++k) {
     const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
@@ -414,8 +419,15 @@ double BlockDescentSolver::volumeEnergyOf(const std::vector<double>& volumes) co
 }
 
 void BlockDescentSolver::restLengthsChanged() {
-  for (const auto& [spring, entry] : pose_dependent_entries_)
-    neighbours_[static_cast<std::size_t>(entry)].rest_length = system_.springs.rest_length[spring];
+  // With the belly's tone every entry changes every frame: the gather writes only the rest lengths' own array, in
+  // entry order, split over the cores (each entry is written once, so the result does not depend on the split).
+  const std::int32_t count = static_cast<std::int32_t>(pose_dependent_entries_.size());
+  const Eigen::VectorXd& rest_length = system_.springs.rest_length;
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (count > 65536)
+  for (std::int32_t k = 0; k < count; ++k) {
+    const auto& [spring, entry] = pose_dependent_entries_[static_cast<std::size_t>(k)];
+    neighbour_rest_length_[static_cast<std::size_t>(entry)] = rest_length[spring];
+  }
 }
 
 void BlockDescentSolver::updateDragWeights() {
@@ -446,7 +458,11 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
   updateDragDirections(state.rest_carried_position);
   // m = c + tau / (w + tau) (I - t t^T)(h - c): the tie's pull across the fibre joins the drag's anchor.
   merged = carried;
-  for (const std::int32_t p : free_particles_) {
+  const auto free_count = static_cast<std::int32_t>(free_particles_.size());
+  // Each particle alone: split over the cores, the same result.
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > 4096)
+  for (std::int32_t k = 0; k < free_count; ++k) {
+    const std::int32_t p = free_particles_[static_cast<std::size_t>(k)];
     const Eigen::Vector3d t = drag_direction_.col(p);
     Eigen::Vector3d towards_rest = state.rest_carried_position.col(p) - carried.col(p);
     towards_rest -= t.dot(towards_rest) * t;
@@ -459,7 +475,9 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
                                   std::to_string(carried.cols()) + " particles)");
     // A constant force b is the energy -b^T x; with the quadratic W about m it is W about m + W^-1 b, up to a constant.
     // W^-1 = ((I - t t^T) + t t^T / a') / w, a' > 0 (validated).
-    for (const std::int32_t p : free_particles_) {
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > 4096)
+    for (std::int32_t k = 0; k < free_count; ++k) {
+      const std::int32_t p = free_particles_[static_cast<std::size_t>(k)];
       if (!(drag_weight_[p] > 0)) continue;
       const Eigen::Vector3d t = drag_direction_.col(p);
       const Eigen::Vector3d b = state.rest_balance_force.col(p);
@@ -659,7 +677,8 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         double energy = 0;
         for (std::int32_t s = spring_begin; s < spring_end; ++s) {
           const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
-          energy += springEnergy(at, position.col(spring.other), spring.stiffness, spring.rest_length);
+          energy += springEnergy(at, position.col(spring.other), spring.stiffness,
+                                 neighbour_rest_length_[static_cast<std::size_t>(s)]);
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
@@ -677,7 +696,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
         for (std::int32_t s = spring_begin; s < spring_end; ++s) {
           const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
           addSpring(xp, positions + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
-                    spring.rest_length, block);
+                    neighbour_rest_length_[static_cast<std::size_t>(s)], block);
         }
         for (std::int32_t e = contact_begin; e < contact_end; ++e) {
           const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
@@ -750,7 +769,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       if (volume_inline) volume_direct_[static_cast<std::size_t>(p)] = 1;
       position.col(p) = x;
     }
-    if (volume_.active()) applyVolumeSteps(position, begin, end);
+    if (volume_.active()) applyVolumeSteps(position, begin, end, threads);
   }
   // Sums in particle order, so they do not depend on the thread count either (in locals: the references might alias
   // the arrays as far as the compiler knows).
@@ -807,7 +826,7 @@ double BlockDescentSolver::residualOf(const ParticleState& state) {
     for (std::int32_t s = slot_spring_begin_[slot]; s < slot_spring_begin_[slot + 1]; ++s) {
       const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
       addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
-                spring.rest_length, block);
+                neighbour_rest_length_[static_cast<std::size_t>(s)], block);
     }
     for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
       const ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
@@ -850,7 +869,7 @@ BlockDescentSolver::SweepCost BlockDescentSolver::sweepCost(const ParticleState&
   if (anisotropicDrag()) per_particle_bytes += kVector;
   if (volume_.active()) per_particle_bytes += kVector;
   SweepCost cost;
-  cost.bytes = free_count * per_particle_bytes + springs * sizeof(NeighbourSpring) +
+  cost.bytes = free_count * per_particle_bytes + springs * (sizeof(NeighbourSpring) + sizeof(double)) +
                contacts * sizeof(ContactEntry) + fixed_count * kVector;
   const double drag_flops = anisotropicDrag() ? 46 : 12;
   cost.flops = 46 * springs + 42 * contacts + free_count * (drag_flops + 45 + 5 + 9);
@@ -923,7 +942,8 @@ double BlockDescentSolver::springEnergyAtSlot(std::size_t slot, const Eigen::Mat
     const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
     // A spring between two free particles is listed at both ends.
     const double share = system_.is_fixed[static_cast<std::size_t>(spring.other)] ? 1.0 : 0.5;
-    energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness, spring.rest_length);
+    energy += share * springEnergy(position.col(p), position.col(spring.other), spring.stiffness,
+                                   neighbour_rest_length_[static_cast<std::size_t>(s)]);
   }
   return energy;
 }
@@ -1023,6 +1043,7 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
       };
       for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
         const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
+        const double rest_length = neighbour_rest_length_[static_cast<std::size_t>(s)];
         const double* xo = position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other);
         const Eigen::Vector3d d(xp[0] - xo[0], xp[1] - xo[1], xp[2] - xo[2]);
         const double length_squared = d.squaredNorm();
@@ -1032,13 +1053,13 @@ bool BlockDescentSolver::fibreModeStep(Eigen::Matrix3Xd& position) {
         double isotropic = spring.stiffness, outer = 0;
         if (length_squared > 0.0) {
           const double inverse_length = 1.0 / std::sqrt(length_squared);
-          const double stretch = 1.0 - spring.rest_length * inverse_length;
+          const double stretch = 1.0 - rest_length * inverse_length;
           const double transverse = 0.5 * (stretch + std::abs(stretch));
           isotropic = spring.stiffness * transverse;
           outer = spring.stiffness * (1.0 - transverse) * inverse_length * inverse_length;
           const double pull = spring.stiffness * stretch;
           f_along -= pull * t.dot(d);
-          const double extension = length_squared * inverse_length - spring.rest_length;
+          const double extension = length_squared * inverse_length - rest_length;
           energy += (system_.is_fixed[ok] ? 0.5 : 0.25) * spring.stiffness * extension * extension;
         }
         const double t_d = t.dot(d);
@@ -1158,7 +1179,7 @@ void BlockDescentSolver::frameForces(const Eigen::Matrix3Xd& position, Eigen::Ma
     for (std::int32_t s = slot_spring_begin_[static_cast<std::size_t>(slot)]; s < slot_spring_begin_[static_cast<std::size_t>(slot) + 1]; ++s) {
       const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
       addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
-                spring.rest_length, block);
+                neighbour_rest_length_[static_cast<std::size_t>(s)], block);
     }
     const Eigen::Vector3d x = position.col(p);
     for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
@@ -1218,7 +1239,7 @@ void BlockDescentSolver::frameHessianTimes(const Eigen::Matrix3Xd& position, con
       const NeighbourSpring& spring = neighbours_[static_cast<std::size_t>(s)];
       Block block;
       addSpring(xp, position.data() + 3 * static_cast<std::ptrdiff_t>(spring.other), spring.stiffness,
-                spring.rest_length, block);
+                neighbour_rest_length_[static_cast<std::size_t>(s)], block);
       const bool other_free = !system_.is_fixed[static_cast<std::size_t>(spring.other)];
       apply(block, other_free ? Eigen::Vector3d(vp - direction.col(spring.other)) : vp);
     }

@@ -88,6 +88,9 @@ class CollisionWorld {
 
   const CollisionStats& accumulatedStats() const { return stats_; }
   void resetTiming();
+  // Threads findContacts may use (>= 2: the muscle pairs and the bone fields' contacts are searched side by side; the
+  // contacts found are the same). 1 by default.
+  void setThreads(int threads) { threads_ = threads; }
 
   const CollisionSettings& settings() const { return settings_; }
   // True with bone distance fields: contacts may involve any free particle, not only those with a sphere radius.
@@ -113,6 +116,7 @@ class CollisionWorld {
   CollisionStats stats_;
   std::vector<int> bone_sphere_counts_;
   std::int64_t last_pairs_found_ = 0;
+  int threads_ = 1;
 };
 
 }  // namespace muscle_deformation

@@ -12,19 +12,22 @@ namespace muscle_deformation {
 
 // Cold start: every particle moved by the distance-weighted blend of its nearest bones' transforms (fixed particles
 // exactly with their bone); previous = current, i.e. the solve starts at rest.
-void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state);
+// `threads` (here and below): the particles (fibres, springs) are split over that many threads; each is computed alone,
+// so the result does not depend on it.
+void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state,
+                       int threads = 1);
 
 // Vectors given per particle in the rest frame (a force, a direction) turned as the rigid pre-transform turns each
 // particle's neighbourhood: by the blend of its bones' rotations (a plain weighted sum, as the positions are blended).
 Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTransforms& transforms,
-                                  const Eigen::Matrix3Xd& rest_vectors);
+                                  const Eigen::Matrix3Xd& rest_vectors, int threads = 1);
 
 // Warm start from the previous result: the fixed (attached) particles go exactly to their bones; each free particle
 // keeps its previous shape but moves with the blend of its bones' motion since the previous pose
 // (new * previous^-1), so that only the change of shape is left to the solver, not the bones' travel. Velocities are
 // zeroed (previous = current): the old velocities belong to the old pose.
 void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_transforms,
-               const BoneTransforms& transforms, ParticleState& state);
+               const BoneTransforms& transforms, ParticleState& state, int threads = 1);
 
 // Only the fixed (attached) particles follow their bones; free particles keep the previous result and velocity.
 void moveAttachments(const MassSpringSystem& system, const BoneTransforms& transforms, ParticleState& state);
@@ -53,7 +56,7 @@ double fibreSpanLength(const MassSpringSystem& system, const BellyTone& tone, co
 // length, held to [1 - kMaxToneChange, 1 + kMaxToneChange]; `limited` (optional) says whether the limit held it. 1 for
 // a fibre without a belly length.
 double fibreToneFactor(const BellyTone& tone, const FibreSpan& span, double span_change_m, bool* limited = nullptr);
-bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms);
+bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms, int threads = 1);
 // Each fibre's arc length at `positions` (tendon anchors left out), in the order of BellyTone::fibres.
 std::vector<double> fibreArcLengths(const MassSpringSystem& system, const Eigen::Matrix3Xd& positions);
 // The most a fibre stretches with its tone in one frame (stretchWithTone), as a share of its length. 0.01, measured with

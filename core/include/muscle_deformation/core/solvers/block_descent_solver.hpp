@@ -233,7 +233,7 @@ class BlockDescentSolver final : public SoftBodySolver {
  private:
   struct NeighbourSpring {
     std::int32_t other;
-    double stiffness, rest_length;  // double: a spring at its rest length exerts exactly no force
+    double stiffness;
   };
   void buildColouring();
   void updateDragWeights();
@@ -260,6 +260,9 @@ class BlockDescentSolver final : public SoftBodySolver {
   double mean_rest_length_ = 0.0;
   std::vector<std::int32_t> neighbour_begin_;  // per particle, into neighbours_ (while building)
   std::vector<NeighbourSpring> neighbours_;      // each free particle's springs, in visiting order
+  // Their rest lengths, entry by entry, apart: the pose changes them every frame (restLengthsChanged), and rewriting
+  // them inside neighbours_ moved three times the bytes. Double: a spring at its rest length exerts exactly no force.
+  std::vector<double> neighbour_rest_length_;
   std::vector<std::int32_t> slot_spring_begin_;  // per visiting slot (index into coloured_particles_), into neighbours_
   // The entries of neighbours_ whose rest length changes with the pose, (spring, entry): each tendon spring with a path
   // (system.tendon_paths), and every spring when the belly has a tone (system.belly_tone).
@@ -331,7 +334,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   // The particle's step cut to its bound (the contact margin plus its starting depth).
   void limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const;
   // The volume term's share of the steps of one colour's particles (those with a volume gradient), then their moves.
-  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end);
+  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end, int threads);
   // The volume term's value and gradient at `position` into volume_now_ / volume_gradient_ (nothing when off).
   void evaluateVolume(const Eigen::Matrix3Xd& position);
   // sum_m k_m / 2 (V_m - target_m)^2 for the volumes in volume_now_.
