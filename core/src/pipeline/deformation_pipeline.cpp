@@ -138,7 +138,7 @@ const FrameResult& DeformationPipeline::finishFrame(const FrameStopping& stoppin
   if (skinning_ && (want_surfaces || (want_metrics && metrics_))) {
     const auto skin_start = std::chrono::steady_clock::now();
     const int threads = parallelThreads(settings_.threads, stopping.sweeps.limits);
-    skinning_->update(positions, frame_.bone_transforms, frame_.surfaces);
+    skinning_->update(positions, frame_.bone_transforms, frame_.surfaces, threads);
     if (surface_contact_)
       frame_.bone_corrections = surface_contact_->apply(frame_.surfaces, frame_.bone_transforms, threads);
     if (surface_volume_) {

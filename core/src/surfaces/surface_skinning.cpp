@@ -290,9 +290,12 @@ SurfaceSkinning::SurfaceSkinning(const MassSpringSystem& system, const std::vect
 }
 
 void SurfaceSkinning::update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
-                             std::vector<Vertices>& surfaces) const {
+                             std::vector<Vertices>& surfaces, int threads) const {
   if (surfaces.size() != skins_.size()) surfaces.resize(skins_.size());
-  for (std::size_t m = 0; m < skins_.size(); ++m) skins_[m].update(particle_positions, bone_transforms, surfaces[m]);
+  const int muscles = static_cast<int>(skins_.size());
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(dynamic)
+  for (int m = 0; m < muscles; ++m)
+    skins_[static_cast<std::size_t>(m)].update(particle_positions, bone_transforms, surfaces[static_cast<std::size_t>(m)]);
 }
 
 }  // namespace muscle_deformation

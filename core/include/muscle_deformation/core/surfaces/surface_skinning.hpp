@@ -112,9 +112,10 @@ class SurfaceSkinning {
   // `muscles` are the muscles the system was built from (same order). Throws SkinningError.
   SurfaceSkinning(const MassSpringSystem& system, const std::vector<Muscle>& muscles, const SkinningSettings& settings);
 
-  // Per frame: fills surfaces[m] for every muscle; no allocation once `surfaces` has been filled before.
+  // Per frame: fills surfaces[m] for every muscle; no allocation once `surfaces` has been filled before. The muscles
+  // are shared out over `threads` (each fills its own surface: the result does not depend on it).
   void update(const Eigen::Matrix3Xd& particle_positions, const BoneTransforms& bone_transforms,
-              std::vector<Vertices>& surfaces) const;
+              std::vector<Vertices>& surfaces, int threads = 1) const;
 
   const std::vector<MuscleSkin>& muscles() const { return skins_; }
   const SkinningSettings& settings() const { return settings_; }
