@@ -340,8 +340,9 @@ void BlockDescentSolver::limitStep(std::int32_t p, const Eigen::Vector3d& start,
   if (length > bound) x = start + (bound / length) * (x - start);
 }
 
-void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end,
-                                          int threads) {
+void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, const std::int32_t* slots, std::int32_t begin,
+                                          std::int32_t end, int threads) {
+  const auto slot = [slots](std::int32_t i) { return static_cast<std::size_t>(slots ? slots[i] : i); };
   // The colour's particles of one muscle minimise, together, their own quadratic models (step a_p = H_p^-1 f_p without
   // the volume) plus k/2 (V + sum g_p . d_p - V_rest)^2, which couples them through one scalar: with b_p = H_p^-1 g_p,
   // d_p = a_p - mu b_p and mu = k (V - V_rest + sum g.a) / (1 + k sum g.b) (Sherman-Morrison). Each particle taking the
@@ -349,16 +350,16 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   const std::size_t muscles = volume_now_.size();
   // Particles in contact took the volume term in their own step (their volume change is known): the others of the
   // colour see the volume after them.
-  for (std::int32_t k = begin; k < end; ++k) {
-    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+  for (std::int32_t i = begin; i < end; ++i) {
+    const std::int32_t p = coloured_particles_[slot(i)];
     if (!volume_direct_[static_cast<std::size_t>(p)]) continue;
     volume_now_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])] += volume_change_[p];
     volume_direct_[static_cast<std::size_t>(p)] = 0;
   }
   colour_a_.assign(muscles, 0.0);
   colour_b_.assign(muscles, 0.0);
-  for (std::int32_t k = begin; k < end; ++k) {
-    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+  for (std::int32_t i = begin; i < end; ++i) {
+    const std::int32_t p = coloured_particles_[slot(i)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
     const std::size_t m = static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)]);
     colour_a_[m] += volume_gradient_.col(p).dot(volume_step_.col(p));
@@ -370,8 +371,8 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   }
   // Each particle alone, split over the sweep's threads (the same result).
 #pragma omp parallel for num_threads(threads) schedule(static) if (end - begin > 2048)
-  for (std::int32_t k = begin; k < end; ++k) {
-    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+  for (std::int32_t i = begin; i < end; ++i) {
+    const std::int32_t p = coloured_particles_[slot(i)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
     const double mu = colour_a_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])];
     const Eigen::Vector3d start = position.col(p);
@@ -384,8 +385,8 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32
   // The steps changed the muscles' volumes by sum g . d (each exact on its own, V being linear in one particle; the
   // cross terms of particles moved together are second order), added in particle order so that the result does not
   // depend on the thread count.
-  for (std::int32_t k = begin; k < end; ++k) {
-    const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+  for (std::int32_t i = begin; i < end; ++i) {
+    const std::int32_t p = coloured_particles_[slot(i)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
     volume_now_[static_cast<std::size_t>(system_.muscle_of[static_cast<std::size_t>(p)])] += volume_change_[p];
     volume_pending_[static_cast<std::size_t>(p)] = 0;
@@ -575,6 +576,18 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state, double margi
     contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.second)]++)] = {
         Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), p.distance, p.first, same_colour};
   }
+  // The visiting slots with a contact, colour by colour: all that the closing contact pass visits.
+  const int colours = colourCount();
+  contact_slots_.clear();
+  contact_slot_begin_.assign(static_cast<std::size_t>(colours) + 1, 0);
+  for (int c = 0; c < colours; ++c) {
+    for (std::int32_t k = colour_begin_[static_cast<std::size_t>(c)]; k < colour_begin_[static_cast<std::size_t>(c) + 1];
+         ++k) {
+      const std::size_t p = static_cast<std::size_t>(coloured_particles_[static_cast<std::size_t>(k)]);
+      if (contact_begin_[p + 1] > contact_begin_[p]) contact_slots_.push_back(k);
+    }
+    contact_slot_begin_[static_cast<std::size_t>(c) + 1] = static_cast<std::int32_t>(contact_slots_.size());
+  }
 }
 
 int BlockDescentSolver::sweepThreads(const SolveLimits& limits) const {
@@ -619,10 +632,15 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
   // before the colour, so the sweep's result does not depend on which thread moves first. Both then move at once, each
   // as if the other stood still, and together would overshoot the overlap twice (and chatter); doubling the contact's
   // curvature for such pairs makes each take half, which together is the whole overlap.
+  // The closing contact pass (touching_only) visits only the slots with a contact (contact_slots_): the others would
+  // be passed over; the full sweep visits every slot. `slot(i)` is the i-th visited slot of the colour.
+  const std::vector<std::int32_t>& visit_begin = touching_only ? contact_slot_begin_ : colour_begin_;
+  const std::int32_t* visit_slot = touching_only ? contact_slots_.data() : nullptr;
+  const auto slot = [visit_slot](std::int32_t i) { return visit_slot ? visit_slot[i] : i; };
   for (int c = 0; c < colours; ++c) {
-    const std::int32_t begin = colour_begin_[static_cast<std::size_t>(c)], end = colour_begin_[static_cast<std::size_t>(c) + 1];
-    for (std::int32_t k = begin; k < end; ++k) {
-      const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
+    const std::int32_t begin = visit_begin[static_cast<std::size_t>(c)], end = visit_begin[static_cast<std::size_t>(c) + 1];
+    for (std::int32_t i = begin; i < end; ++i) {
+      const std::int32_t p = coloured_particles_[static_cast<std::size_t>(slot(i))];
       for (std::int32_t e = contact_begin_[static_cast<std::size_t>(p)]; e < contact_begin_[static_cast<std::size_t>(p) + 1]; ++e) {
         ContactEntry& entry = contact_entries_[static_cast<std::size_t>(e)];
         if (entry.partner >= 0) entry.centre = position.col(entry.partner);
@@ -633,7 +651,8 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
     // can carry most of them. Each particle of a colour reads only other colours' positions (or a copy), so the result
     // does not depend on which thread takes which chunk.
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 32)
-    for (std::int32_t k = begin; k < end; ++k) {
+    for (std::int32_t i = begin; i < end; ++i) {
+      const std::int32_t k = slot(i);
       const std::int32_t p = coloured_particles_[static_cast<std::size_t>(k)];
       const std::int32_t contact_begin = contact_begin_[static_cast<std::size_t>(p)];
       const std::int32_t contact_end = contact_begin_[static_cast<std::size_t>(p) + 1];
@@ -769,7 +788,7 @@ void BlockDescentSolver::sweep(Eigen::Matrix3Xd& position, double& residual_squa
       if (volume_inline) volume_direct_[static_cast<std::size_t>(p)] = 1;
       position.col(p) = x;
     }
-    if (volume_.active()) applyVolumeSteps(position, begin, end, threads);
+    if (volume_.active()) applyVolumeSteps(position, visit_slot, begin, end, threads);
   }
   // Sums in particle order, so they do not depend on the thread count either (in locals: the references might alias
   // the arrays as far as the compiler knows).

@@ -316,6 +316,9 @@ class BlockDescentSolver final : public SoftBodySolver {
   ContactQuery contact_query_;
   ContactSet contacts_;
   std::vector<std::int32_t> contact_begin_;    // per particle, into contact_entries_
+  // The visiting slots (into coloured_particles_) of particles with a contact, in colour order, and per colour where
+  // they begin in it (the closing contact pass visits these alone).
+  std::vector<std::int32_t> contact_slots_, contact_slot_begin_;
   std::vector<ContactEntry> contact_entries_;
   std::vector<std::uint8_t> bounded_step_;     // per particle: collidable (radius > 0, or any free particle against a
                                                // bone field), so with contacts queried its step is cut to the margin
@@ -334,7 +337,10 @@ class BlockDescentSolver final : public SoftBodySolver {
   // The particle's step cut to its bound (the contact margin plus its starting depth).
   void limitStep(std::int32_t p, const Eigen::Vector3d& start, Eigen::Vector3d& x) const;
   // The volume term's share of the steps of one colour's particles (those with a volume gradient), then their moves.
-  void applyVolumeSteps(Eigen::Matrix3Xd& position, std::int32_t begin, std::int32_t end, int threads);
+  // `slots`: the visiting slots (into coloured_particles_) the sweep visited, [begin, end) of them; nullptr: the slots
+  // begin .. end themselves.
+  void applyVolumeSteps(Eigen::Matrix3Xd& position, const std::int32_t* slots, std::int32_t begin, std::int32_t end,
+                        int threads);
   // The volume term's value and gradient at `position` into volume_now_ / volume_gradient_ (nothing when off).
   void evaluateVolume(const Eigen::Matrix3Xd& position);
   // sum_m k_m / 2 (V_m - target_m)^2 for the volumes in volume_now_.
