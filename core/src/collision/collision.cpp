@@ -515,7 +515,6 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
   std::vector<Impl::FieldContact>& field_found = w.field_found;
   field_found.clear();
   double muscle_ms = 0, field_ms = 0;
-  int field_contacts = 0;
   const auto findMuscleContacts = [&] {
     const auto muscle_start = Clock::now();
     w.findMusclePairs();
@@ -531,9 +530,9 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
   };
   const auto findFieldContacts = [&] {
     const auto field_start = Clock::now();
-    field_contacts = w.forEachFieldContact(state, std::max(0.0, margin_m),
-                                           [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal,
-                                               int bone, Eigen::Index k) {
+    w.forEachFieldContact(state, std::max(0.0, margin_m),
+                          [&](std::int32_t particle, double depth, const Eigen::Vector3d& normal, int bone,
+                              Eigen::Index k) {
       field_found.push_back({particle, Eigen::Vector3d(state.position.col(particle) + depth * normal), normal, bone, k});
     });
     field_ms = millisecondsSince(field_start);
@@ -574,7 +573,7 @@ void CollisionWorld::findContacts(const ParticleState& state, ContactSet& contac
     contacts.half_spaces.push_back({found.particle, found.point, found.normal});
     w.listed_field.emplace_back(found.bone, found.k);
   }
-  bone_contacts += field_contacts;
+  bone_contacts += static_cast<int>(field_found.size());
   stats_.bone_cd_ms += millisecondsSince(start) + field_ms;
 
   stats_.contacts = muscle_contacts + bone_contacts;

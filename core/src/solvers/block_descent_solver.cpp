@@ -19,6 +19,9 @@ namespace muscle_deformation {
 
 namespace {
 using Clock = std::chrono::steady_clock;
+// Below this many elements a pass outside the sweep stays on one thread (not worth the threads' start; a small
+// analytic model never splits).
+constexpr std::int32_t kParallelMinimum = 4096;
 
 int everyCore() {
 #ifdef _OPENMP
@@ -370,7 +373,7 @@ void BlockDescentSolver::applyVolumeSteps(Eigen::Matrix3Xd& position, const std:
     colour_a_[m] = k * (volume_now_[m] - volume_.target(m) + colour_a_[m]) / (1.0 + k * colour_b_[m]);  // mu
   }
   // Each particle alone, split over the sweep's threads (the same result).
-#pragma omp parallel for num_threads(threads) schedule(static) if (end - begin > 2048)
+#pragma omp parallel for num_threads(threads) schedule(static) if (end - begin > kParallelMinimum)
   for (std::int32_t i = begin; i < end; ++i) {
     const std::int32_t p = coloured_particles_[slot(i)];
     if (!volume_pending_[static_cast<std::size_t>(p)]) continue;
@@ -424,7 +427,7 @@ void BlockDescentSolver::restLengthsChanged() {
   // entry order, split over the cores (each entry is written once, so the result does not depend on the split).
   const std::int32_t count = static_cast<std::int32_t>(pose_dependent_entries_.size());
   const Eigen::VectorXd& rest_length = system_.springs.rest_length;
-#pragma omp parallel for num_threads(thread_count_) schedule(static) if (count > 65536)
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (count > kParallelMinimum)
   for (std::int32_t k = 0; k < count; ++k) {
     const auto& [spring, entry] = pose_dependent_entries_[static_cast<std::size_t>(k)];
     neighbour_rest_length_[static_cast<std::size_t>(entry)] = rest_length[spring];
@@ -461,7 +464,7 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
   merged = carried;
   const auto free_count = static_cast<std::int32_t>(free_particles_.size());
   // Each particle alone: split over the cores, the same result.
-#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > 4096)
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > kParallelMinimum)
   for (std::int32_t k = 0; k < free_count; ++k) {
     const std::int32_t p = free_particles_[static_cast<std::size_t>(k)];
     const Eigen::Vector3d t = drag_direction_.col(p);
@@ -476,7 +479,7 @@ const Eigen::Matrix3Xd& BlockDescentSolver::frameDragAnchor(const ParticleState&
                                   std::to_string(carried.cols()) + " particles)");
     // A constant force b is the energy -b^T x; with the quadratic W about m it is W about m + W^-1 b, up to a constant.
     // W^-1 = ((I - t t^T) + t t^T / a') / w, a' > 0 (validated).
-#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > 4096)
+#pragma omp parallel for num_threads(thread_count_) schedule(static) if (free_count > kParallelMinimum)
     for (std::int32_t k = 0; k < free_count; ++k) {
       const std::int32_t p = free_particles_[static_cast<std::size_t>(k)];
       if (!(drag_weight_[p] > 0)) continue;
@@ -576,6 +579,9 @@ void BlockDescentSolver::gatherContacts(const ParticleState& state, double margi
     contact_entries_[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.second)]++)] = {
         Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), p.distance, p.first, same_colour};
   }
+}
+
+void BlockDescentSolver::listContactSlots() {
   // The visiting slots with a contact, colour by colour: all that the closing contact pass visits.
   const int colours = colourCount();
   contact_slots_.clear();
@@ -1370,6 +1376,7 @@ SolveStats BlockDescentSolver::solve(ParticleState& state, const StoppingSetting
     // CollisionWorld::measureListed counts them in this frame's figures.
     const auto pass_start = Clock::now();
     double ignored_residual = 0, ignored_displacement = 0;
+    listContactSlots();
     sweep(state.position, ignored_residual, ignored_displacement, sweepThreads(stopping.limits), true);
     state.previous_position = state.position;
     stats.collision_ms += millisecondsSince(pass_start);

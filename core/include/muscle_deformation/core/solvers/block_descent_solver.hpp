@@ -238,6 +238,8 @@ class BlockDescentSolver final : public SoftBodySolver {
   void buildColouring();
   void updateDragWeights();
   void gatherContacts(const ParticleState& state, double margin_m = -1);  // < 0: contact_margin_m_
+  // contact_slots_ / contact_slot_begin_ from the contacts gathered last (before the closing contact pass).
+  void listContactSlots();
   // One sweep over every colour (or only the particles touching a contact); returns the summed squared residual force
   // and summed |step| of the free particles.
   void sweep(Eigen::Matrix3Xd& position, double& residual_squared_sum, double& displacement_sum, int threads,
@@ -317,7 +319,7 @@ class BlockDescentSolver final : public SoftBodySolver {
   ContactSet contacts_;
   std::vector<std::int32_t> contact_begin_;    // per particle, into contact_entries_
   // The visiting slots (into coloured_particles_) of particles with a contact, in colour order, and per colour where
-  // they begin in it (the closing contact pass visits these alone).
+  // they begin in it (the closing contact pass visits these alone; listContactSlots).
   std::vector<std::int32_t> contact_slots_, contact_slot_begin_;
   std::vector<ContactEntry> contact_entries_;
   std::vector<std::uint8_t> bounded_step_;     // per particle: collidable (radius > 0, or any free particle against a
