@@ -20,9 +20,10 @@ RATE_HZ = 60.0
 
 
 def movable_joints(urdf_path):
-    """Names of the URDF's non-fixed joints, in document order (the order of JointState.name)."""
+    """Names of the joints a pose sets, in document order (the order of JointState.name): neither fixed nor
+    mimicking another joint (robot_state_publisher derives those)."""
     root = ET.parse(urdf_path).getroot()
-    return [j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"]
+    return [j.get("name") for j in root.findall("joint") if j.get("type") != "fixed" and j.find("mimic") is None]
 
 
 class GaitBags(unittest.TestCase):

@@ -64,7 +64,7 @@ class BadParameters(unittest.TestCase):
         package = rospkg.RosPack().get_path(PACKAGE)
         with open(os.path.join(package, "urdf", "right_hip_thigh.urdf")) as handle:
             urdf = handle.read()
-        urdf = re.sub(r'<joint name="patella_r_fixed"[\s\S]*?</joint>|<link name="patella_r">[\s\S]*?</link>', "", urdf)
+        urdf = re.sub(r'<joint name="patella_slide_r"[\s\S]*?</joint>|<link name="patella_r">[\s\S]*?</link>', "", urdf)
         self.assertNotIn('name="patella_r"', urdf)
         with tempfile.NamedTemporaryFile("w", suffix=".urdf", delete=False) as handle:
             handle.write(urdf)

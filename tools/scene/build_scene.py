@@ -9,7 +9,8 @@ Writes (relative to the package root):
   tools/scene/build_params.json    landmarks, registrations and scale factors
                                    (read by mot_to_bag.py and report.py)
 
-Run:  PYENV_VERSION=system /usr/bin/python3 tools/scene/build_scene.py
+Run:  PYENV_VERSION=system /usr/bin/python3 tools/scene/build_scene.py [--urdf-only]
+      (--urdf-only rewrites just the URDF from build_params.json and the committed bones)
 Deterministic: no random numbers; VTK filters and scipy's least squares are
 deterministic for a fixed input.
 """
@@ -559,7 +560,7 @@ def main():
     with open(out_path("tools", "scene", "build_params.json"), "w") as f:
         json.dump(params, f, indent=1, sort_keys=True)
 
-    write_urdf(root, H, K, Pc, Rp, Rf, sf, xp)
+    write_urdf(root, H, K, Pc, Rp, Rf, sf, xp, patella_track(params, root))
     write_yaml(root)
     print(json.dumps(params["notes"], indent=1))
 
@@ -582,7 +583,31 @@ def body_inertial(root, body, R, scale, origin):
             % (fmt(com), m, I_ros[0], I_ros[1], I_ros[2]))
 
 
-def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp):
+def patella_track(params, root):
+    """The patella's slide with the knee (sites.patella_track), fitted over the bundled gait's knee angles,
+    with the tibia's measured scale (sites.fit_tibia, rounded as the scene file's body_scales are)."""
+    import sites
+    _, tibia = sites.fit_tibia(sl.PKG, params, root)
+    knee = sites.read_gait()["knee_angle_r"]
+    return sites.patella_track(params, root, [round(tibia["scale"], 4)] * 3, (float(knee.min()), float(knee.max())))
+
+
+def rewrite_urdf():
+    """Only the URDF, from build_params.json and the committed bones (what a change to write_urdf needs; the
+    meshes, registrations and scene file stay as they are)."""
+    root = sl.load_osim()
+    with open(out_path("tools", "scene", "build_params.json")) as f:
+        params = json.load(f)
+    xf = np.concatenate([params["femur_registration"]["rotvec"], params["femur_registration"]["translation_vhf_ros"]])
+    pr = params["pelvis_registration"]
+    xp = np.concatenate([pr["rotvec"], pr["translation_vhf_ros"], np.log(pr["scale_ap_ml_si"])])
+    write_urdf(root, np.array(params["hip_centre"]), np.array(params["knee_centre"]),
+               np.array(params["patella_origin"]), sl.rotvec_to_matrix(xp[:3]), sl.rotvec_to_matrix(xf[:3]),
+               np.array(params["femur_registration"]["scale_ap_ml_long"]), xp, patella_track(params, root))
+
+
+def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp, patella):
+    """patella: how the patella slides with the knee (sites.patella_track)."""
     pkg = "package://muscle_deformation/data/meshes/bones/"
     ex, ey, ez = np.eye(3)
     os_x, os_y, os_z = ex, ez, -ey   # OpenSim axes written in ROS axes
@@ -618,7 +643,7 @@ def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp):
         s += '  </link>'
         lines.append(s)
 
-    def joint(name, jtype, parent, child, xyz=(0, 0, 0), axis=None, limits=None, comment=None):
+    def joint(name, jtype, parent, child, xyz=(0, 0, 0), axis=None, limits=None, comment=None, mimic=None):
         s = ''
         if comment:
             s += '  <!-- %s -->\n' % comment
@@ -629,6 +654,8 @@ def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp):
             s += '    <axis xyz="%s"/>\n' % fmt(unit(axis))
         if limits is not None:
             s += '    <limit lower="%.6g" upper="%.6g" effort="1000" velocity="20"/>\n' % tuple(limits)
+        if mimic is not None:
+            s += '    <mimic joint="%s" multiplier="%.6g" offset="0"/>\n' % mimic
         s += '  </joint>'
         lines.append(s)
 
@@ -675,10 +702,19 @@ def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp):
     joint("knee_angle_r", "revolute", "knee_ty_r_link", "tibia_r", axis=Rf @ os_z, limits=rng("knee_angle_r"))
     link("tibia_r", meshes=("tibia_r", "fibula_r"),
          inertial=body_inertial(root, "tibia_r", Rf, sf, np.zeros(3)))
-    joint("patella_r_fixed", "fixed", "tibia_r", "patella_r", xyz=Pc - K,
-          comment=("gait2392 has no patella body (its quadriceps use moving points on the tibia); the "
-                   "patellar ligament keeps the patella at a nearly constant distance from the tibial "
-                   "tuberosity, so it is fixed rigidly to the tibia here"))
+    # the patella slides with the knee as gait2392's quadriceps ends do (sites.patella_track): a
+    # prismatic joint mimicking knee_angle_r, so every source of knee angles moves it (the bags carry
+    # no value for it: robot_state_publisher and the node's skeleton derive it)
+    lo, hi = sorted(patella["metres_per_rad"] * np.array(rng("knee_angle_r")))
+    joint("patella_slide_r", "prismatic", "tibia_r", "patella_r", xyz=Pc - K, axis=patella["axis"],
+          limits=(lo, hi), mimic=("knee_angle_r", patella["metres_per_rad"]),
+          comment=("gait2392 has no patella body: its quadriceps end on tibia_r points that move back "
+                   "with knee flexion. patella_slide_r = %.6g m/rad x knee_angle_r along their mean path "
+                   "(a line fitted over the gait's knee angles %.2f..%.2f rad, carried into the tibia by "
+                   "the knee chain; it lies within %.1f mm of their mean point there, %.1f mm over the "
+                   "knee's whole range)" % (patella["metres_per_rad"], patella["knee_range_rad"][0],
+                                            patella["knee_range_rad"][1], patella["fit_max_mm_over_knee_range"],
+                                            patella["fit_max_mm_over_range_of_motion"])))
     link("patella_r", meshes=("patella_r",))
     lines.append('</robot>')
     os.makedirs(out_path("urdf"), exist_ok=True)
@@ -788,4 +824,9 @@ def write_yaml(root):
 
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:] == ["--urdf-only"]:
+        rewrite_urdf()
+    elif sys.argv[1:]:
+        sys.exit("usage: build_scene.py [--urdf-only]")
+    else:
+        main()

@@ -323,6 +323,11 @@ def sites_section():
     quads = [n for n, m in ms.items() if any(p["how"] == "moving" for p in m["points"])]
     stand = [p["stand_in_off_patella_mm"] for n in quads for p in ms[n]["points"] if p["how"] == "moving"]
     quad_ratio = [ms[n]["registered_excursion_mm"] / ms[n]["ref_excursion_mm"] for n in quads]
+    pat = rep["patella_track"]
+    # the quadriceps along our paths (through the VHF bellies' fibre ends): excursion ratio, knee moment arm
+    ours_quad = ", ".join("%s x%.2f (%.0f / %.0f mm)" % (
+        n.replace("_", " "), ms[n]["excursion_mm"] / ms[n]["ref_excursion_mm"],
+        ms[n]["moment_arms_at_rest_mm"]["ours"][3], ms[n]["moment_arms_at_rest_mm"]["gait2392"][3]) for n in quads)
     moved = [p["moved_onto_bone_mm"] for m in ms.values() for p in m["points"]
              if p["site"] and p["how"] not in ("fleshy", "landmark")]
     tib_vias = [abs(p["bone_distance_mm"]) for m in ms.values() for p in m["points"]
@@ -382,11 +387,13 @@ come from gait2392's path points (data/NOTICE).
   50 mm from the tibia: they become `patella_r` points, moved onto its surface
   (its base, where the quadriceps tendon inserts), and the insertion continues
   to the tibial tuberosity (a landmark of the VHF tibia: its vertex furthest
-  towards the patella 25-60 mm below its top; gait2392 has no such point). Our
-  patella is fixed to the tibia, so these points do not slide as gait2392's do:
-  gait2392's own path run in our skeleton gives the quadriceps
-  {min(quad_ratio):.1f}-{max(quad_ratio):.1f} times gait2392's excursion over the gait (last column) —
-  a limit of the fixed patella, not of the sites.
+  towards the patella 25-60 mm below its top; gait2392 has no such point). The
+  patella slides with the knee as these points do: the URDF's `patella_slide_r`
+  mimics `knee_angle_r`, {1e3 * pat["metres_per_rad"]:.1f} mm/rad along the line that best fits their mean
+  path over the gait's knee angles (carried into the tibia by the knee chain;
+  within {pat["fit_max_mm_over_knee_range"]:.1f} mm of it over the gait, {pat["fit_max_mm_over_range_of_motion"]:.1f} mm over the knee's whole
+  range). gait2392's own path run in our skeleton gives the quadriceps
+  {min(quad_ratio):.2f}-{max(quad_ratio):.2f} times gait2392's excursion over the gait (last column).
 - **ConditionalPathPoints** stay when active over more than {100 * rep["active_share"]:.0f} % of the
   bundled gait's range of their coordinate (`data/gait/gait_1cycle.csv`):
   kept {kept}; left out {dropped}.
@@ -430,8 +437,10 @@ skeleton applies the trial's hip angles to the VHF posture, hip rotation
 rest posture as well, r ≥ {min(m["registered_r_posed"] for m in compared):.2f} for every muscle). The r column runs
 our paths, through the VHF bellies' fibre ends: r ≥ 0.9 for {len(good)}; for
 {", ".join(n for n in rep["order"] if ms[n]["reference_muscles"] and n not in good)} the line of the VHF belly between its fibre ends differs
-from gait2392's straight one. The quadriceps' excursions exceed gait2392's by the
-fixed patella (above), the iliacus' falls short because the VHF belly itself
+from gait2392's straight one. The quadriceps along our paths (excursion against
+gait2392's, knee moment arm at extension ours / gait2392's): {ours_quad}; a
+belly that ends on the femur close to the patella turns the path's last segment
+about a point near the knee. The iliacus' excursion falls short because the VHF belly itself
 wraps over the pelvic brim, where gait2392's via points lie (left out, covered).
 
 | muscle | gait2392 | origin path | insertion path | site moved onto bone mm (origin / insertion) | via points off bone mm | belly ends move with | r | excursion mm ours / gait2392 | gait2392's path in our skeleton: r, excursion mm |

@@ -39,7 +39,11 @@ def forward_kinematics(urdf, q):
               @ sl.rotvec_to_matrix([rpy[0], 0, 0]))
         p = p + R @ xyz
         R = R @ Ro
-        v = q.get(j.get("name"), 0.0)
+        mimic = j.find("mimic")
+        if mimic is not None:   # a joint that follows another (the patella's slide with the knee)
+            v = float(mimic.get("multiplier", 1.0)) * q.get(mimic.get("joint"), 0.0) + float(mimic.get("offset", 0.0))
+        else:
+            v = q.get(j.get("name"), 0.0)
         if j.get("type") in ("revolute", "continuous", "prismatic"):
             ax = np.array([float(a) for a in j.find("axis").get("xyz").split()])
             if j.get("type") == "prismatic":

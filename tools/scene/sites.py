@@ -368,6 +368,41 @@ class Registrations:
                 "tibia_r": list(self.tibia_scale)}
 
 
+QUADRICEPS_OS = ("rect_fem_r", "vas_lat_r", "vas_med_r", "vas_int_r")
+
+
+def patella_track(params, root, tibia_scale, knee_range):
+    """How the patella slides with the knee, from gait2392: its quadriceps end on tibia_r points that
+    move with knee_angle_r (its stand-in for the patella). Their mean displacement from KNEE_REST,
+    carried into the tibia link's frame by the knee chain (the link frame is parallel to the scene's
+    at the zero configuration), is fitted by a line through KNEE_REST over knee_range (the angles
+    the bundled gait covers, sampled evenly): displacement = (q - KNEE_REST) * metres_per_rad * axis.
+    A URDF prismatic joint mimicking the knee carries exactly that line. Returns the axis (unit,
+    tibia link frame), metres_per_rad and the line's distance to gait2392's mean point, mm (max over
+    knee_range, and max over the knee's whole range of motion)."""
+    chain = knee_chain(params, root, tibia_scale)
+    moving = [pp for m in QUADRICEPS_OS for pp in path_points(root, m)
+              if pp.kind == "moving" and pp.body == "tibia_r"]
+    if len(moving) != len(QUADRICEPS_OS):
+        raise ValueError("gait2392: expected one moving tibia_r point per quadriceps muscle, found %d" % len(moving))
+
+    def displacement(q):
+        p = np.mean([pp.location({"knee_angle_r": q}) for pp in moving], axis=0)
+        p0 = np.mean([pp.location({"knee_angle_r": KNEE_REST}) for pp in moving], axis=0)
+        return chain(p) - chain(p0)
+    qs = np.linspace(knee_range[0], knee_range[1], 41) - KNEE_REST
+    D = np.array([displacement(q + KNEE_REST) for q in qs])
+    v = (qs[:, None] * D).sum(0) / (qs ** 2).sum()    # least squares through the rest angle
+    c = root.find(".//Coordinate[@name='knee_angle_r']")
+    full = np.linspace(*sl._floats(c.find("range").text), 81) - KNEE_REST
+    miss = lambda Q: max(np.linalg.norm(displacement(q + KNEE_REST) - q * v) for q in Q)  # noqa: E731
+    return {"axis": (v / np.linalg.norm(v)).tolist(), "metres_per_rad": float(np.linalg.norm(v)),
+            "knee_range_rad": [float(knee_range[0]), float(knee_range[1])],
+            "fit_max_mm_over_knee_range": float(miss(qs) * 1e3),
+            "fit_max_mm_over_range_of_motion": float(miss(full) * 1e3),
+            "muscles": list(QUADRICEPS_OS)}
+
+
 # ---------------------------------------------------------------------------
 # geometry helpers
 # ---------------------------------------------------------------------------
@@ -851,6 +886,23 @@ def _r(x, d=2):
     return None if x is None else round(float(x), d) + 0.0   # no -0.0
 
 
+def urdf_patella_track(reg):
+    """The patella's slide (patella_track, the gait's knee angles) with the tibia scale of these sites, checked
+    against the URDF's patella_slide_r: a URDF written from other measurements is an error, named."""
+    knee = read_gait()["knee_angle_r"]
+    track = patella_track(reg.params, sl.load_osim(), reg.tibia_scale, (float(knee.min()), float(knee.max())))
+    import xml.etree.ElementTree as ET
+    joint = ET.parse(URDF).getroot().find("joint[@name='patella_slide_r']")
+    mimic = None if joint is None else joint.find("mimic")
+    urdf_rate = None if mimic is None else mimic.get("multiplier")
+    if urdf_rate != "%.6g" % track["metres_per_rad"]:     # the URDF's precision (build_scene.write_urdf)
+        raise ValueError("%s: patella_slide_r mimics knee_angle_r at %s m/rad, the sites' fit gives %.6g: rerun "
+                         "build_scene.py --urdf-only" % (URDF, urdf_rate, track["metres_per_rad"]))
+    return {k: ([_r(x, 5) for x in v] if k == "axis" else _r(v, 6) if k == "metres_per_rad" else
+                [_r(x, 4) for x in v] if k == "knee_range_rad" else _r(v) if isinstance(v, float) else v)
+            for k, v in track.items()}
+
+
 def report(reg, rec):
     """The measurements behind the sites (tools/scene/sites_report.json, read by readme_text.py)."""
     out = {"knee_angle_rest_rad": KNEE_REST,
@@ -861,6 +913,7 @@ def report(reg, rec):
            "active_share": ACTIVE_SHARE,
            "order": list(rec),
            "hip_rest_rad": reg.params["vhf_rest_angles_rad"]["hip_flexion_adduction_rotation"],
+           "patella_track": urdf_patella_track(reg),
            "muscles": {}}
     for name, r in rec.items():
         m = {"reference_muscles": r["bundles"], "notes": r["notes"], "ordered": r["ordered"],

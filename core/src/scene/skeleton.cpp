@@ -204,7 +204,7 @@ const SkeletonJoint* Skeleton::joint(const std::string& name) const {
 std::vector<std::string> Skeleton::movableJointNames() const {
   std::vector<std::string> names;
   for (const auto& j : joints_)
-    if (j.type != "fixed") names.push_back(j.name);
+    if (j.type != "fixed" && j.mimic_joint.empty()) names.push_back(j.name);
   return names;
 }
 

@@ -55,7 +55,8 @@ class Skeleton {
   const std::vector<SkeletonJoint>& joints() const { return joints_; }
   const SkeletonLink* link(const std::string& name) const;
   const SkeletonJoint* joint(const std::string& name) const;
-  // Names of joints that move (not fixed), in URDF order.
+  // Names of the joints a pose sets, in URDF order: neither fixed nor mimicking another joint (a mimic joint
+  // follows the joint it mimics, as the patella's slide follows the knee, and a value given to it is ignored).
   std::vector<std::string> movableJointNames() const;
 
   // Forward kinematics: every link's pose in the root frame. Throws SceneError for an unknown joint name or a
