@@ -29,7 +29,9 @@ the sites keep gait2392's alignment (and so its knee moment arms) and are moved
 onto the VHF bone instead (below). The quadriceps' MovingPathPoints (gait2392's
 stand-in for the patella, evaluated at KNEE_REST) lie on our patella: they become
 patella_r points, moved onto its surface, and the insertion continues to the
-tibial tuberosity (a landmark of the VHF tibia; gait2392 has none).
+tibial tuberosity (a landmark of the VHF tibia; gait2392 has none). The patella
+slides along the tibia with the knee as those points do (patella_track: the
+line build_scene.py gives the URDF's patella_slide_r, checked here).
 
 Selection. ConditionalPathPoints stay when active over more than half of the
 bundled gait's range of their coordinate. The fibre ends of the muscle are
