@@ -598,12 +598,11 @@ def rewrite_urdf():
     root = sl.load_osim()
     with open(out_path("tools", "scene", "build_params.json")) as f:
         params = json.load(f)
-    xf = np.concatenate([params["femur_registration"]["rotvec"], params["femur_registration"]["translation_vhf_ros"]])
-    pr = params["pelvis_registration"]
+    fr, pr = params["femur_registration"], params["pelvis_registration"]
     xp = np.concatenate([pr["rotvec"], pr["translation_vhf_ros"], np.log(pr["scale_ap_ml_si"])])
     write_urdf(root, np.array(params["hip_centre"]), np.array(params["knee_centre"]),
-               np.array(params["patella_origin"]), sl.rotvec_to_matrix(xp[:3]), sl.rotvec_to_matrix(xf[:3]),
-               np.array(params["femur_registration"]["scale_ap_ml_long"]), xp, patella_track(params, root))
+               np.array(params["patella_origin"]), sl.rotvec_to_matrix(pr["rotvec"]), sl.rotvec_to_matrix(fr["rotvec"]),
+               np.array(fr["scale_ap_ml_long"]), xp, patella_track(params, root))
 
 
 def write_urdf(root, H, K, Pc, Rp, Rf, sf, xp, patella):

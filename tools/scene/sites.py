@@ -340,6 +340,7 @@ class Registrations:
 
     def __init__(self, pkg, params, root):
         self.params = params
+        self.root = root
         self.O = np.array(params["scene_origin_in_vhf_ros_m"])
         self.xp = _xsim(params["pelvis_registration"], "scale_ap_ml_si")
         self.xf = _xsim(params["femur_registration"], "scale_ap_ml_long")
@@ -388,10 +389,12 @@ def patella_track(params, root, tibia_scale, knee_range):
     if len(moving) != len(QUADRICEPS_OS):
         raise ValueError("gait2392: expected one moving tibia_r point per quadriceps muscle, found %d" % len(moving))
 
+    def mean_point(q):
+        return chain(np.mean([pp.location({"knee_angle_r": q}) for pp in moving], axis=0))
+    rest = mean_point(KNEE_REST)
+
     def displacement(q):
-        p = np.mean([pp.location({"knee_angle_r": q}) for pp in moving], axis=0)
-        p0 = np.mean([pp.location({"knee_angle_r": KNEE_REST}) for pp in moving], axis=0)
-        return chain(p) - chain(p0)
+        return mean_point(q) - rest
     qs = np.linspace(knee_range[0], knee_range[1], 41) - KNEE_REST
     D = np.array([displacement(q + KNEE_REST) for q in qs])
     v = (qs[:, None] * D).sum(0) / (qs ** 2).sum()    # least squares through the rest angle
@@ -892,14 +895,14 @@ def urdf_patella_track(reg):
     """The patella's slide (patella_track, the gait's knee angles) with the tibia scale of these sites, checked
     against the URDF's patella_slide_r: a URDF written from other measurements is an error, named."""
     knee = read_gait()["knee_angle_r"]
-    track = patella_track(reg.params, sl.load_osim(), reg.tibia_scale, (float(knee.min()), float(knee.max())))
+    track = patella_track(reg.params, reg.root, reg.tibia_scale, (float(knee.min()), float(knee.max())))
     import xml.etree.ElementTree as ET
-    joint = ET.parse(URDF).getroot().find("joint[@name='patella_slide_r']")
-    mimic = None if joint is None else joint.find("mimic")
-    urdf_rate = None if mimic is None else mimic.get("multiplier")
-    if urdf_rate != "%.6g" % track["metres_per_rad"]:     # the URDF's precision (build_scene.write_urdf)
+    mimic = ET.parse(URDF).getroot().find("joint[@name='patella_slide_r']/mimic[@joint='knee_angle_r']")
+    if mimic is None:
+        raise ValueError("%s: no joint patella_slide_r mimicking knee_angle_r: rerun build_scene.py --urdf-only" % URDF)
+    if mimic.get("multiplier") != "%.6g" % track["metres_per_rad"]:     # the URDF's precision (write_urdf)
         raise ValueError("%s: patella_slide_r mimics knee_angle_r at %s m/rad, the sites' fit gives %.6g: rerun "
-                         "build_scene.py --urdf-only" % (URDF, urdf_rate, track["metres_per_rad"]))
+                         "build_scene.py --urdf-only" % (URDF, mimic.get("multiplier"), track["metres_per_rad"]))
     return {k: ([_r(x, 5) for x in v] if k == "axis" else _r(v, 6) if k == "metres_per_rad" else
                 [_r(x, 4) for x in v] if k == "knee_range_rad" else _r(v) if isinstance(v, float) else v)
             for k, v in track.items()}

@@ -12,8 +12,9 @@
 namespace muscle_deformation {
 
 namespace {
-// Below these counts a pass is not worth the threads' start (a small analytic model stays on one thread).
-constexpr Eigen::Index kParallelParticles = 4096;
+// Below these counts a pass is not worth the threads' start (a small analytic model stays on one thread): particles
+// or springs, and fibres.
+constexpr Eigen::Index kParallelElements = 4096;
 constexpr std::int64_t kParallelFibres = 256;
 
 void checkTransforms(const MassSpringSystem& system, const BoneTransforms& transforms) {
@@ -53,7 +54,7 @@ void rigidPretransform(const MassSpringSystem& system, const BoneTransforms& tra
   checkTransforms(system, transforms);
   const Eigen::Index n = system.particleCount();
   state.position.resize(3, n);
-#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelElements)
   for (Eigen::Index i = 0; i < n; ++i) state.position.col(i) = blendedMotion(system, transforms, i, system.rest_position.col(i));
   state.previous_position = state.position;
 }
@@ -66,7 +67,7 @@ Eigen::Matrix3Xd carryRestVectors(const MassSpringSystem& system, const BoneTran
     throw std::invalid_argument("carryRestVectors: " + std::to_string(rest_vectors.cols()) + " vectors for " +
                                 std::to_string(n) + " particles");
   Eigen::Matrix3Xd carried(3, n);
-#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelElements)
   for (Eigen::Index i = 0; i < n; ++i) {
     const Eigen::Vector3d vector = rest_vectors.col(i);
     carried.col(i) = blendOverBones(system, i, vector,
@@ -85,7 +86,7 @@ void warmStart(const MassSpringSystem& system, const BoneTransforms& previous_tr
   BoneTransforms motion(transforms.size());
   for (std::size_t b = 0; b < transforms.size(); ++b) motion[b] = transforms[b] * previous_transforms[b].inverse();
   const Eigen::Index n = system.particleCount();
-#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelParticles)
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static) if (n > kParallelElements)
   for (Eigen::Index i = 0; i < n; ++i) {
     if (system.is_fixed[i] && system.fixed_bone[i] != kNoBone)
       state.position.col(i) = transforms[system.fixed_bone[i]] * system.rest_position.col(i);
@@ -186,7 +187,7 @@ bool updateBellyTone(MassSpringSystem& system, const BoneTransforms& transforms,
   }
   bool changed = false;
   const auto springs = static_cast<std::int64_t>(tone.first_fibre.size());
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(|| : changed) if (springs > kParallelParticles)
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(|| : changed) if (springs > kParallelElements)
   for (std::int64_t s = 0; s < springs; ++s) {
     const std::int32_t a = tone.first_fibre[static_cast<std::size_t>(s)], b = tone.second_fibre[static_cast<std::size_t>(s)];
     if (a < 0 || b < 0) continue;
