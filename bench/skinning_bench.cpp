@@ -178,7 +178,7 @@ int main(int argc, char** argv) {
     pose_label = "hip_flexion_r 0.5 rad, knee_angle_r -1.0 rad";
     std::printf("\nbundled scene: %ld particles, cold solve %d iterations, %.0f ms, with sphere collision\n",
                 static_cast<long>(bundled_simulation.system().particleCount()), bundled_frame.solver.iterations,
-                bundled_frame.solver.total_ms);
+                bundled_frame.solve_ms);
     stats = bundled_frame.solver;
     for (const Variant& variant : variants()) {
       const SurfaceSkinning skinning(bundled_simulation.system(), bundled.muscles, variant.settings);

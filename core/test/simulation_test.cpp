@@ -132,6 +132,28 @@ TEST(Simulation, WarmStartAfterAColdOneStartsFromThePreviousResult) {
   EXPECT_FALSE(solvePose(simulation, pose, StartMode::warm, stopping).warm_started);
 }
 
+TEST(Simulation, AFramesSolveTimeIsItsPreparationItsSolverAndWhatFollows) {
+  // The frame's wall time counts what the solver's own clock does not: carrying the particles to the pose and the
+  // drag's anchors before it, the contact figures and the volume pressure after it. A refinement prepares nothing.
+  const ThighAtNodeSettings scene = thighAtNodeSettings();
+  PipelineSettings settings = scene.node.pipeline;
+  settings.skin_surfaces = settings.measure_fidelity = false;
+  DeformationPipeline pipeline(scene.thigh.scene.muscle_descriptions, scene.thigh.scene.muscles, scene.thigh.scene.bones,
+                               settings);
+  const FrameStopping stopping = scene.oneSweep();
+  pipeline.solve(boneTransformsOf(pipeline.bones(), scene.hipFlexion(0.0)), StartMode::cold, stopping, false, false);
+  const FrameStats warm =
+      pipeline.solve(boneTransformsOf(pipeline.bones(), scene.hipFlexion(0.05)), StartMode::warm, stopping, false, false)
+          .stats;
+  ASSERT_TRUE(warm.warm_started);
+  EXPECT_GT(warm.preparation_ms, 0.0);
+  EXPECT_GT(warm.solver.total_ms, 0.0);
+  EXPECT_GE(warm.solve_ms, warm.preparation_ms + warm.solver.total_ms);
+  const FrameStats refined = pipeline.refine(stopping, false, false).stats;
+  EXPECT_EQ(refined.preparation_ms, 0.0);
+  EXPECT_GE(refined.solve_ms, refined.solver.total_ms);
+}
+
 TEST(Simulation, ANonFinitePoseIsRejected) {
   MuscleSimulation simulation(packedMuscles(), grazingBones(), smallSettings());
   Pose pose;

@@ -189,3 +189,34 @@ TEST(SpringMetrics, AnalyticStrainsAndTheSameFiguresForAnyThreadCount) {
     EXPECT_EQ(many.strain_p99, one.strain_p99) << threads;
   }
 }
+
+TEST(SolveLimits, TimeSpentBeforeASolveComesOffItsBudgetAndItsCeiling) {
+  StoppingSettings stopping = StoppingSettings::withinBudget(12.0, 30);
+  stopping.limits.wall_time_limit_ms = 50.0;
+  const StoppingSettings after = afterTimeSpent(stopping, 4.5);
+  EXPECT_DOUBLE_EQ(after.time_budget_ms, 7.5);
+  EXPECT_DOUBLE_EQ(after.limits.wall_time_limit_ms, 45.5);
+  EXPECT_EQ(after.max_iterations, 30);
+  EXPECT_EQ(after.rule, StoppingRule::time_budget);
+  // Used up: no budget left (the solve still runs its one iteration), and the ceiling stays a ceiling, not "none".
+  const StoppingSettings used_up = afterTimeSpent(stopping, 60.0);
+  EXPECT_EQ(used_up.time_budget_ms, 0.0);
+  EXPECT_GT(used_up.limits.wall_time_limit_ms, 0.0);
+  EXPECT_LT(used_up.limits.wall_time_limit_ms, 1e-300);
+  EXPECT_TRUE(validate(used_up).empty());
+  // No ceiling stays none; nothing spent changes nothing.
+  stopping.limits.wall_time_limit_ms = 0;
+  EXPECT_EQ(afterTimeSpent(stopping, 5.0).limits.wall_time_limit_ms, 0.0);
+  EXPECT_DOUBLE_EQ(afterTimeSpent(stopping, 0.0).time_budget_ms, 12.0);
+}
+
+TEST(SolveLimits, ACeilingUsedUpBeforeTheSolveStopsItAfterOneIteration) {
+  ParticleState state;
+  const MassSpringSystem system = pulledChain(50, state);
+  VerletSolver solver(system, VerletSettings{});
+  StoppingSettings stopping = StoppingSettings::afterIterations(1000);
+  stopping.limits.wall_time_limit_ms = 10.0;
+  const SolveStats stats = solver.solve(state, afterTimeSpent(stopping, 10.0));
+  EXPECT_EQ(stats.iterations, 1);
+  EXPECT_TRUE(stats.time_limit_reached);
+}

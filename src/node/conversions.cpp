@@ -367,8 +367,10 @@ muscle_deformation::DeformationStats statsToMessage(const FrameResult& frame, co
   stats.collision_ms = solve.collision_ms;
   stats.skinning_ms = frame.skinning_ms;
   stats.metrics_ms = frame.metrics_ms;
-  stats.solve_ms = solve.total_ms;
-  stats.total_ms = solve.total_ms + frame.skinning_ms + frame.metrics_ms;
+  stats.solve_ms = frame.stats.solve_ms;
+  stats.preparation_ms = frame.stats.preparation_ms;
+  stats.solver_ms = solve.total_ms;
+  stats.total_ms = frame.stats.solve_ms + frame.skinning_ms + frame.metrics_ms;
   stats.spring_deviation_ratio = solve.spring_deviation_ratio;
   stats.mean_strain = solve.mean_strain;
   stats.max_strain = solve.max_strain;

@@ -267,7 +267,7 @@ FrameWants MuscleDeformationNode::frameWants() const {
 }
 
 void MuscleDeformationNode::publish(const StreamStep& step, const ros::Time& stamp) {
-  pose_diagnostics_.stepped(stream_->counters(), step.frame ? step.frame->stats.solver.total_ms : -1.0);
+  pose_diagnostics_.stepped(stream_->counters(), step.frame ? step.frame->stats.solve_ms : -1.0);
   if (step.outcome == StreamOutcome::failed)
     ROS_ERROR_STREAM_THROTTLE(2.0, "muscle_deformation: solve of the pose at " << stamp << " failed: " << step.reason);
   if (!step.frame) return;

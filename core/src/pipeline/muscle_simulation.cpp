@@ -212,6 +212,7 @@ StoppingSettings MuscleSimulation::mainSolveStopping(bool warm, const FrameStopp
 
 FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode start, const FrameStopping& stopping,
                                    double frame_interval_s) {
+  const auto solve_start = std::chrono::steady_clock::now();
   if (const std::string problem = validate(stopping); !problem.empty())
     throw std::invalid_argument("frame stopping: " + problem);
   if (transforms.size() != bones_.size())
@@ -289,7 +290,8 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   // A time budget is the real-time contract of a continuing stream; a cold start continues nothing and runs a fixed
   // number of iterations instead (FrameStopping::cold_start_iterations).
   frame_transforms_ = transforms;
-  const StoppingSettings main = mainSolveStopping(stats.warm_started, stopping);
+  stats.preparation_ms = millisecondsSince(solve_start);
+  const StoppingSettings main = afterTimeSpent(mainSolveStopping(stats.warm_started, stopping), stats.preparation_ms);
   if (!stats.warm_started)
     resetVolumePressure();
   else
@@ -336,6 +338,7 @@ FrameStats MuscleSimulation::solve(const BoneTransforms& transforms, StartMode s
   finishFrame(transforms, drag, false, stats);
   updateVolumePressure();
   measureColdDragShare(stats.warm_started);
+  stats.solve_ms = millisecondsSince(solve_start);
   return stats;
 }
 
@@ -354,6 +357,7 @@ FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
   if (const std::string problem = validate(stopping); !problem.empty())
     throw std::invalid_argument("frame stopping: " + problem);
   if (!has_previous_) throw std::logic_error("refine: there is no finished previous frame to continue");
+  const auto solve_start = std::chrono::steady_clock::now();
   FrameStats stats;
   stats.has_collision = collision_ != nullptr;
   stats.warm_started = last_frame_warm_;
@@ -365,6 +369,7 @@ FrameStats MuscleSimulation::refine(const FrameStopping& stopping) {
   finishFrame(transforms, solver_->dragsTissue(), true, stats);
   updateVolumePressure();
   measureColdDragShare(stats.warm_started);
+  stats.solve_ms = millisecondsSince(solve_start);
   return stats;
 }
 

@@ -177,7 +177,7 @@ std::vector<SettingSpec> buildTable() {
       number("displacement_tolerance_m", "m", 0.0, 1.0,
              "displacement rule: stop when the mean free-particle step falls below this",
              [stopping](CoreSettings& s) -> double& { return stopping(s).displacement_tolerance_m; }),
-      number("time_budget_ms", "ms", 0.0, 1e6, "time_budget rule: stop when the solve has run this long",
+      number("time_budget_ms", "ms", 0.0, 1e6, "time_budget rule: stop when the frame's solve (its preparation included) has run this long",
              [stopping](CoreSettings& s) -> double& { return stopping(s).time_budget_ms; }),
       integer("cold_start_sweeps", "count", 1, 1000,
               "time_budget rule: sweeps a cold start (the first frame, a discontinuity) runs once instead of its "

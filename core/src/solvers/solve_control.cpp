@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #ifdef _OPENMP
@@ -70,6 +71,15 @@ std::string validate(const StoppingSettings& stopping) {
       !std::isfinite(stopping.residual_tolerance) || !std::isfinite(stopping.time_budget_ms))
     return "tolerances and the time budget must be finite and non-negative";
   return {};
+}
+
+StoppingSettings afterTimeSpent(StoppingSettings stopping, double spent_ms) {
+  spent_ms = std::max(0.0, spent_ms);
+  stopping.time_budget_ms = std::max(0.0, stopping.time_budget_ms - spent_ms);
+  if (stopping.limits.wall_time_limit_ms > 0)
+    stopping.limits.wall_time_limit_ms =
+        std::max(stopping.limits.wall_time_limit_ms - spent_ms, std::numeric_limits<double>::min());
+  return stopping;
 }
 
 SpringMetrics measureSprings(const SpringSet& springs, const Eigen::Matrix3Xd& position, int threads) {

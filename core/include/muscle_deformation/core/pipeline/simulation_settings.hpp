@@ -102,6 +102,12 @@ struct FrameStats {
   bool fell_back_to_pretransform = false;
   int deep_contact_sweeps = 0;  // sweeps taken past the budget for a deep bone contact (FrameStopping)
   int catch_up_sweeps = 0;      // sweeps taken past the budget for a residual far above the stream's (FrameStopping)
+  // Wall times of the frame's solve, milliseconds. solve_ms is all of it: the pose's preparation (tendons' and the
+  // belly tone's rest lengths, carrying the particles to the pose, the tissue drag's anchors), the solver
+  // (solver.total_ms: sweeps, contact search, closing contact pass) and what follows it (spring and contact figures,
+  // the volume pressure). A time budget counts from the solve's start, preparation included.
+  double solve_ms = 0;
+  double preparation_ms = 0;  // of solve_ms, before the solver's first sweep
 };
 
 }  // namespace muscle_deformation

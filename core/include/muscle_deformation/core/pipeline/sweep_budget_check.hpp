@@ -1,5 +1,5 @@
-// Whether the machine fits one sweep between two poses of the stream. Under a time budget a frame always takes at least
-// one sweep, so on a machine too slow for it every frame overruns the pose period and the stream drops the poses that
+// Whether the machine fits a frame of one sweep between two poses of the stream. Under a time budget a frame always
+// takes at least one sweep, so on a machine too slow for it every frame overruns the pose period and the stream drops the poses that
 // arrive meanwhile (the newest is solved next). The user should hear that once, with the measured figures and what to
 // change, not find it in a rate diagnostic. The lighter setting it names was measured on the bundled 26 muscles, the
 // 1-cycle gait at one sweep a frame, 2026-11-26, Release, a shared 2-core AMD EPYC VM: particles_per_fibre 10 builds 19,802 particles and 179,847 springs
@@ -24,8 +24,9 @@ class SweepBudgetCheck {
       : pose_period_ms_(pose_period_ms), resolution_fitted_(resolution_fitted) {}
 
   // One solved frame. Warm frames only count (a cold start runs its fixed sweeps once). After kFramesJudged of them,
-  // returns the message once when their median time per sweep (the solve over its sweeps: contacts and sweep) exceeds
-  // the pose period; an empty string otherwise and ever after.
+  // returns the message once when their median time with one sweep (the frame's whole solve, FrameStats::solve_ms,
+  // less the solver's time for its sweeps past the first) exceeds the pose period; an empty string otherwise and ever
+  // after.
   std::string add(const FrameStats& stats, bool warm);
   bool judged() const { return judged_; }
   double medianSweepMilliseconds() const { return median_sweep_ms_; }  // once judged

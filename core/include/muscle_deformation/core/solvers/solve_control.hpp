@@ -86,6 +86,11 @@ struct StoppingSettings {
 // Empty when the settings are usable, otherwise what is wrong (a negative cap or tolerance).
 std::string validate(const StoppingSettings& stopping);
 
+// `stopping` for a solve that starts `spent_ms` into its caller's time: the budget and the wall-time ceiling are the
+// caller's, so what was spent is gone from both. A budget used up still leaves the one iteration every solve runs; a
+// ceiling used up stops the solve after it (it stays a ceiling: 0 would mean none).
+StoppingSettings afterTimeSpent(StoppingSettings stopping, double spent_ms);
+
 // The seeds' stopping rules, evaluated after every iteration; shared by the solvers so they stop alike.
 class StoppingMonitor {
  public:
