@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iostream>
 #include <cmath>
+#include <filesystem>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -33,6 +34,14 @@ inline Options parseOptions(int argc, char** argv) {
       std::cerr << "usage: " << argv[0] << " [--out DIR] [--quick]\n";
       std::exit(2);
     }
+  }
+  // The output directory is made (or refused) before the run, not after minutes of measuring.
+  std::error_code error;
+  std::filesystem::create_directories(options.out_dir, error);
+  if (error || !std::filesystem::is_directory(options.out_dir)) {
+    std::cerr << argv[0] << ": cannot make the output directory " << options.out_dir
+              << (error ? ": " + error.message() : std::string(": not a directory")) << "\n";
+    std::exit(2);
   }
   return options;
 }

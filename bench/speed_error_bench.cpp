@@ -734,25 +734,36 @@ int main(int argc, char** argv) {
   for (const ModelVariant& v : models) run(v);
 
   // Resolution per muscle: the coarsest measured nearest18 model whose surface error for that muscle stays within the
-  // worst muscle's error of uniform 20 x 64 at every checked frame.
+  // worst muscle's error of uniform 20 x 64 at every checked frame, less a margin. Without it the muscle that sets the
+  // target keeps 20 x 64 at exactly the target, and its neighbours' coarser models move it past (2026-11-28: the rectus
+  // femoris 8.516 against 8.509 mm): the margin, 1 % of the target, is over ten times that interaction.
   if (!options.quick) {
+    constexpr double kTargetMargin = 0.01;
     const std::vector<double>& uniform20 = per_muscle_worst.at(base.label);
-    const double target = *std::max_element(uniform20.begin(), uniform20.end());
+    const double worst = *std::max_element(uniform20.begin(), uniform20.end());
+    const double target = (1.0 - kTargetMargin) * worst;
     ModelVariant mixed;
     mixed.label = "per muscle within " + std::to_string(1e3 * target).substr(0, 4) + " mm";
-    std::printf("[%6.1f s] resolution per muscle, target %.3f mm RMS (the worst muscle of %s):\n", elapsedSeconds(),
-                1e3 * target, base.label.c_str());
+    std::printf("[%6.1f s] resolution per muscle, target %.3f mm RMS (the worst muscle of %s, %.3f, less 1 %%):\n", elapsedSeconds(),
+                1e3 * target, base.label.c_str(), 1e3 * worst);
     for (std::size_t m = 0; m < bundled.scene.muscles.size(); ++m) {
-      const ModelVariant* chosen = &base;
-      long fewest = static_cast<long>(base.particles_per_fibre) * base.fibres_per_muscle;
+      // The coarsest within the target, finer than 20 x 64 where that is not (the finest model is the reference);
+      // 20 x 64 where none is.
+      const ModelVariant* chosen = nullptr;
+      long fewest = 0;
+      double chosen_error = 0;
       for (const ModelVariant& v : models) {
         if (v.label == finest.label || v.layout != SpringLayout::nearest_neighbours || v.neighbours != 18) continue;
         const long size = static_cast<long>(v.particles_per_fibre) * v.fibres_per_muscle;
-        if (per_muscle_worst.at(v.label)[m] <= target && size < fewest) {
+        const double error = per_muscle_worst.at(v.label)[m];
+        if (error <= target &&
+            (!chosen || size < fewest || (size == fewest && error < chosen_error))) {
           chosen = &v;
           fewest = size;
+          chosen_error = error;
         }
       }
+      if (!chosen) chosen = &base;
       mixed.muscle_particles_per_fibre.push_back(chosen->particles_per_fibre);
       mixed.muscle_fibres.push_back(chosen->fibres_per_muscle);
       std::printf("  %-28s %d x %d (its error there %.3f mm)\n", bundled.scene.muscles[m].name.c_str(),

@@ -390,7 +390,9 @@ def section(rows, img_dir, img_link_prefix="img/", realtime_rows=None):
              "spring layouts, the node's model and contacts, on the well-posed problem: block descent with the node's "
              "tissue drag, so that a frame has one answer. Every configuration is one point; x is its frame time "
              f"(stream: {stream_frames}, each frame's solve, median) or pose time (cold: five gait poses, median), "
-             "the solver's wall clock (springs and contacts; skinning and metrics left out). Threads 0 = every core. "
+             "the wall clock of the frame's whole solve (the pose's preparation, the solver's springs and contacts, the "
+             "figures after it; skinning and metrics left out; the runs up to 2026-11-28 22:00 UTC counted the solver "
+             "alone). Threads 0 = every core. "
              "Raw points: `out/bench/speed_vs_error.json` (null where not measured).", "",
              machine_line(rows, realtime_rows), "",
              "Three kinds of error, each against a reference that is defined for what it measures:", "",
@@ -434,8 +436,10 @@ def section(rows, img_dir, img_link_prefix="img/", realtime_rows=None):
         lines += ["### Resolution per muscle", "",
                   "From the converged streams, each muscle's surface error to the finest model at its worst checked "
                   "frame, per measured resolution; the mixed model takes for each muscle the coarsest resolution "
-                  "(fewest particles) whose error stays within the worst muscle's error of uniform 20 x 64 (measured in "
-                  "the same run as every other model).", ""]
+                  "(fewest particles; of two as large, the closer) whose error stays within the worst muscle's error "
+                  "of uniform 20 x 64 less 1 % (measured in the same run as every other model), finer than 20 x 64 "
+                  "where that one is not within it: without the margin the muscle that sets the target keeps it "
+                  "exactly, and its coarser neighbours moved it 0.007 mm past (2026-11-28).", ""]
         lines += per_muscle_verdict(rows, mixed_model) + [""] + table + [""]
     lines += ["### The references", "",
               "How converged each model's references are: the block-descent force residual (relative; it stops "
