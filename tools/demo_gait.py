@@ -292,7 +292,7 @@ def summarize(args, frames, stamps, bag_rate_hz, shot_taken, refined_published):
     converged = sum(1 for f in frames if f.converged)
     print(f"refined between poses      {last.poses_refined} refinement solves ({refined_published} published); "
           f"{converged} of {len(frames)} pose frames met the residual criterion within their own budget")
-    print(f"solve (MSS + collision)    median {statistics.median(solve):.1f} ms, max {max(solve):.1f} ms, "
+    print(f"solve (whole, prepared)    median {statistics.median(solve):.1f} ms, max {max(solve):.1f} ms, "
           f"iterations {statistics.median([f.iterations for f in frames]):.0f}")
     print(f"frame total (+ surfaces)   median {statistics.median(total):.1f} ms, max {max(total):.1f} ms")
     print(f"real-time factor           {frame_period_ms / statistics.median(solve):.2f} (solve only), "
