@@ -744,8 +744,8 @@ int main(int argc, char** argv) {
     const double target = (1.0 - kTargetMargin) * worst;
     ModelVariant mixed;
     mixed.label = "per muscle within " + std::to_string(1e3 * target).substr(0, 4) + " mm";
-    std::printf("[%6.1f s] resolution per muscle, target %.3f mm RMS (the worst muscle of %s, %.3f, less 1 %%):\n", elapsedSeconds(),
-                1e3 * target, base.label.c_str(), 1e3 * worst);
+    std::printf("[%6.1f s] resolution per muscle, target %.3f mm RMS (the worst muscle of %s, %.3f, less %.0f %%):\n",
+                elapsedSeconds(), 1e3 * target, base.label.c_str(), 1e3 * worst, 100 * kTargetMargin);
     for (std::size_t m = 0; m < bundled.scene.muscles.size(); ++m) {
       // The coarsest within the target, finer than 20 x 64 where that is not (the finest model is the reference);
       // 20 x 64 where none is.
